@@ -1,0 +1,80 @@
+//! Typed errors of the numeric core. Every public function of the core returns these instead of
+//! panicking; the service maps each variant to a precise HTTP / gRPC status.
+
+use thiserror::Error;
+
+/// What went wrong in the numeric core. Messages say what the caller should fix.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum Error {
+    /// A coordinate or parameter is NaN or infinite.
+    #[error("{what} is not a finite number (NaN or infinity)")]
+    NonFinite { what: String },
+
+    /// Fewer usable points than the operation needs.
+    #[error("{what}: needs at least {needed} points present, got {got}")]
+    TooFewPoints {
+        what: String,
+        needed: usize,
+        got: usize,
+    },
+
+    /// The number of points does not match the scheme or the other operand.
+    #[error("{what}: expected {expected} points, got {got}")]
+    PointCount {
+        what: String,
+        expected: usize,
+        got: usize,
+    },
+
+    /// The points are degenerate for the operation (all equal, collinear, zero spread ...).
+    #[error("degenerate input: {0}")]
+    Degenerate(String),
+
+    /// A parameter is outside its valid range.
+    #[error("invalid parameter {name}: {reason}")]
+    InvalidParameter { name: String, reason: String },
+
+    /// A landmark scheme definition is inconsistent.
+    #[error("invalid landmark scheme {scheme:?}: {reason}")]
+    InvalidScheme { scheme: String, reason: String },
+
+    /// An iterative solver failed to converge or a decomposition failed.
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+}
+
+impl Error {
+    pub(crate) fn non_finite(what: impl Into<String>) -> Self {
+        Error::NonFinite { what: what.into() }
+    }
+
+    pub(crate) fn too_few(what: impl Into<String>, needed: usize, got: usize) -> Self {
+        Error::TooFewPoints {
+            what: what.into(),
+            needed,
+            got,
+        }
+    }
+
+    pub(crate) fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
+        Error::InvalidParameter {
+            name: name.into(),
+            reason: reason.into(),
+        }
+    }
+}
+
+/// Result with the core's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Fails with [`Error::NonFinite`] unless every value is finite.
+pub(crate) fn ensure_finite<'a>(
+    what: &str,
+    values: impl IntoIterator<Item = &'a f64>,
+) -> Result<()> {
+    if values.into_iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(Error::non_finite(what))
+    }
+}

@@ -1,0 +1,9 @@
+//! Rotations, the angle convention, projection and Procrustes alignment.
+
+pub mod convention;
+pub mod procrustes;
+pub mod projection;
+
+pub use convention::{EulerAngles, geodesic_deg, rotation_from_rows, rotation_rows};
+pub use procrustes::{Scaling, Similarity2, Similarity3, align2, align3, generalized_procrustes};
+pub use projection::WeakPerspective;
