@@ -4,8 +4,12 @@
 //! The numeric core ([`geometry`], [`shape`], [`hpr`], [`sfm`], [`synth`]) is pure: no I/O, no
 //! async. Conventions (frames, units, angles) live in [`geometry::convention`].
 
+pub mod data;
 pub mod error;
+pub mod eval;
 pub mod geometry;
+pub mod hpr;
 pub mod shape;
+pub mod synth;
 
 pub use error::{Error, Result};

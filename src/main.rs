@@ -1,1 +1,38 @@
-fn main() {}
+//! The `facepose` command line: one subcommand per task.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cli;
+
+/// Head pose from 2D facial landmarks.
+#[derive(Parser)]
+#[command(name = "facepose", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Score hidden-point removal against a dense mesh's true visibility and print the table.
+    Hpr(cli::hpr::HprArgs),
+    /// Rebuild a 3D shape from several 2D views by structure from motion.
+    Reconstruct(cli::reconstruct::ReconstructArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Hpr(a) => cli::hpr::run(a),
+        Command::Reconstruct(a) => cli::reconstruct::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("facepose: {e:#}");
+            ExitCode::from(2)
+        }
+    }
+}

@@ -1,0 +1,3 @@
+//! Evaluation protocols and their reports.
+
+pub mod hpr_table;
