@@ -152,3 +152,58 @@ pub fn load_aflw(path: &Path) -> Result<Vec<AflwFace>, DataError> {
         })
         .collect()
 }
+
+/// One subject's views in a multi-view file.
+#[derive(Debug, Clone, Deserialize)]
+pub struct SubjectViews {
+    /// Echoed in the output.
+    #[serde(default)]
+    pub id: Option<serde_json::Value>,
+    /// Each view: one `[x, y]` (image pixels, y down) or `null` per point of the scheme.
+    pub views: Vec<Vec<Option<[f64; 2]>>>,
+}
+
+/// A multi-view file: `{"scheme": "ibug68", "views": [...]}` for one subject, or
+/// `{"scheme": "ibug68", "subjects": [{"id": ..., "views": [...]}, ...]}` for several.
+#[derive(Debug, Clone)]
+pub struct MultiViewSet {
+    pub scheme: String,
+    pub subjects: Vec<SubjectViews>,
+}
+
+/// Parses a multi-view file's text (`path` is only used in messages).
+pub fn parse_multi_view(path: &Path, text: &str) -> Result<MultiViewSet, DataError> {
+    #[derive(Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Raw {
+        #[serde(default = "default_scheme")]
+        scheme: String,
+        #[serde(default)]
+        views: Option<Vec<Vec<Option<[f64; 2]>>>>,
+        #[serde(default)]
+        subjects: Option<Vec<SubjectViews>>,
+    }
+    fn default_scheme() -> String {
+        "ibug68".into()
+    }
+    let raw: Raw = parse(path, text)?;
+    let subjects = match (raw.views, raw.subjects) {
+        (Some(views), None) => vec![SubjectViews { id: None, views }],
+        (None, Some(s)) => s,
+        _ => {
+            return Err(DataError::Parse {
+                path: path.into(),
+                reason: "give exactly one of \"views\" (one subject) or \"subjects\"".into(),
+            });
+        }
+    };
+    Ok(MultiViewSet {
+        scheme: raw.scheme,
+        subjects,
+    })
+}
+
+/// Reads a multi-view file.
+pub fn load_multi_view(path: &Path) -> Result<MultiViewSet, DataError> {
+    parse_multi_view(path, &read(path)?)
+}

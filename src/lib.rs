@@ -9,6 +9,7 @@ pub mod error;
 pub mod eval;
 pub mod geometry;
 pub mod hpr;
+pub mod sfm;
 pub mod shape;
 pub mod synth;
 

@@ -18,6 +18,8 @@ struct Cli {
 enum Command {
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
     Hpr(cli::hpr::HprArgs),
+    /// Measure structure from motion on a 3D population seen in synthetic views.
+    EvalSfm(cli::eval_sfm::EvalSfmArgs),
     /// Rebuild a 3D shape from several 2D views by structure from motion.
     Reconstruct(cli::reconstruct::ReconstructArgs),
 }
@@ -27,6 +29,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Hpr(a) => cli::hpr::run(a),
         Command::Reconstruct(a) => cli::reconstruct::run(a),
+        Command::EvalSfm(a) => cli::eval_sfm::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,5 +1,6 @@
 //! Subcommands of the `facepose` binary: argument parsing, files and printing around the library.
 
+pub mod eval_sfm;
 pub mod hpr;
 pub mod reconstruct;
 

@@ -1,3 +1,4 @@
 //! Evaluation protocols and their reports.
 
 pub mod hpr_table;
+pub mod sfm_check;

@@ -105,7 +105,7 @@ pub fn align3(src: &[Vector3<f64>], dst: &[Vector3<f64>], scaling: Scaling) -> R
         Scaling::Rigid => 1.0,
         Scaling::Similarity => trace_ds / var_s,
     };
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 {
         return Err(Error::Degenerate("the target points all coincide".into()));
     }
     let rotation = Rotation3::from_matrix_unchecked(r);
@@ -140,7 +140,7 @@ pub fn align2(src: &[Vector2<f64>], dst: &[Vector2<f64>], scaling: Scaling) -> R
         Scaling::Rigid => 1.0,
         Scaling::Similarity => a.hypot(b) / var_s,
     };
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 {
         return Err(Error::Degenerate("the target points all coincide".into()));
     }
     let rotation = Rotation2::new(angle);

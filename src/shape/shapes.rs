@@ -206,7 +206,7 @@ pub fn normalized_vector(shape: &Shape2) -> Result<(Vec<f64>, f64)> {
         v[2 * i + 1] = p.y - c.y;
     }
     let norm = v.iter().map(|x| x * x).sum::<f64>().sqrt();
-    if !(norm > 1e-12 * (1.0 + c.norm())) {
+    if norm.is_nan() || norm <= 1e-12 * (1.0 + c.norm()) {
         return Err(Error::Degenerate(
             "all present points are at the same place".into(),
         ));
