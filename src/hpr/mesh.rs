@@ -32,7 +32,7 @@ impl MeshVisibility {
             mesh,
             incidence,
             depth_tolerance: 0.0,
-            back_face_rule: false,
+            back_face_rule: true,
         })
     }
 
@@ -44,8 +44,9 @@ impl MeshVisibility {
         self
     }
 
-    /// Also call hidden a point all of whose own triangles face away (off by default: a pure
-    /// ray cast, as a z-buffer sees it).
+    /// Whether a point all of whose own triangles face away counts as hidden (on by default:
+    /// the surface stands for a closed head; off gives a pure ray cast, as a z-buffer of the
+    /// open mesh sees it).
     pub fn with_back_face_rule(mut self, on: bool) -> Self {
         self.back_face_rule = on;
         self
@@ -161,8 +162,11 @@ mod tests {
             m.vertex_visibility(&v).unwrap(),
             vec![true, true, true, false, false, false]
         );
-        // Turned away (mirror z): everything faces backwards.
+        // Turned away (yaw 180): everything faces backwards; a pure ray cast finds nothing in
+        // front of anything (the flap is now behind).
         let back: Vec<_> = v.iter().map(|p| Vector3::new(-p.x, p.y, -p.z)).collect();
         assert_eq!(m.vertex_visibility(&back).unwrap(), vec![false; 6]);
+        let ray = m.clone().with_back_face_rule(false);
+        assert_eq!(ray.vertex_visibility(&back).unwrap(), vec![true; 6]);
     }
 }
