@@ -6,6 +6,7 @@
 
 pub mod data;
 pub mod error;
+pub mod estimate;
 pub mod eval;
 pub mod geometry;
 pub mod hpr;

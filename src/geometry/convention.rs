@@ -125,9 +125,12 @@ pub fn from_axis_angle(axis: Vector3<f64>, angle_deg: f64) -> Result<Rotation3<f
     Ok(Rotation3::from_axis_angle(&axis, angle_deg.to_radians()))
 }
 
-/// The geodesic distance between two rotations in degrees (the angle of `a^T b`).
+/// The geodesic distance between two rotations in degrees (the angle of `aᵀ b`), computed as
+/// `atan2(‖skew part‖, symmetric part)` so that it stays exact near 0 and 180.
 pub fn geodesic_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
-    a.angle_to(b).to_degrees()
+    let m = a.matrix().transpose() * b.matrix();
+    let skew = Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]);
+    (0.5 * skew.norm()).atan2(0.5 * (m.trace() - 1.0)).to_degrees()
 }
 
 #[cfg(test)]
@@ -148,6 +151,16 @@ mod tests {
         // Roll 90 clockwise on screen: the top of the head (+y) goes to image-right (+x).
         let r = EulerAngles::new(0.0, 0.0, 90.0).unwrap().to_rotation();
         assert_relative_eq!(r * Vector3::y(), Vector3::x(), epsilon = 1e-12);
+    }
+
+    #[test]
+    fn geodesic_distance_is_the_rotation_angle() {
+        let a = EulerAngles::new(10.0, 20.0, 30.0).unwrap().to_rotation();
+        assert_eq!(geodesic_deg(&a, &a), 0.0);
+        let b = from_axis_angle(Vector3::new(1.0, 2.0, 2.0), 37.0).unwrap() * a;
+        assert_relative_eq!(geodesic_deg(&a, &b), 37.0, epsilon = 1e-9);
+        let c = from_axis_angle(Vector3::new(0.0, 1.0, 0.0), 180.0).unwrap() * a;
+        assert_relative_eq!(geodesic_deg(&a, &c), 180.0, epsilon = 1e-9);
     }
 
     #[test]

@@ -1,0 +1,101 @@
+//! HPR visibility of a shape precomputed over view directions, so that estimators can ask
+//! "which points does the camera see at this rotation?" in O(1) instead of running HPR.
+//!
+//! Under orthographic projection visibility depends only on the viewing direction in the model
+//! frame, `d = Rᵀ e_z` (the third row of `R`), not on the rotation about it. The map is indexed
+//! by the yaw and pitch of the roll-free rotation with the same `d`:
+//! `pitch = -asin(d_y)`, `yaw = atan2(d_x, d_z)`.
+
+use nalgebra::{Rotation3, Vector3};
+
+use crate::error::{Error, Result};
+use crate::geometry::EulerAngles;
+use crate::hpr::{HprScratch, PaperHpr};
+use crate::synth::AngleRange;
+
+/// Visibility bitmaps over a yaw x pitch grid (roll 0).
+#[derive(Debug, Clone)]
+pub struct VisibilityMap {
+    yaw: AngleRange,
+    pitch: AngleRange,
+    n_points: usize,
+    /// `bits[(iy * n_pitch + ip) * n_points + i]`.
+    bits: Vec<bool>,
+}
+
+impl VisibilityMap {
+    /// Runs HPR over the grid for `shape` (frontal, model frame).
+    pub fn build(shape: &[Vector3<f64>], hpr: &PaperHpr, yaw: AngleRange, pitch: AngleRange) -> Result<Self> {
+        let n = shape.len();
+        if hpr.triangulation().n_points() != n {
+            return Err(Error::PointCount { what: "HPR triangulation".into(), expected: n, got: hpr.triangulation().n_points() });
+        }
+        let mut bits = Vec::with_capacity(yaw.len() * pitch.len() * n);
+        let mut scratch = HprScratch::default();
+        let mut rotated = vec![Vector3::zeros(); n];
+        let mut out = vec![false; n];
+        for y in yaw.values() {
+            for p in pitch.values() {
+                let r = EulerAngles::new(y, p, 0.0)?.to_rotation();
+                for (dst, x) in rotated.iter_mut().zip(shape) {
+                    *dst = r * x;
+                }
+                hpr.visibility_into(&rotated, &mut scratch, &mut out)?;
+                bits.extend_from_slice(&out);
+            }
+        }
+        Ok(VisibilityMap { yaw, pitch, n_points: n, bits })
+    }
+
+    /// The default grid: yaw and pitch within ±90° in 3° steps.
+    pub fn build_default(shape: &[Vector3<f64>], hpr: &PaperHpr) -> Result<Self> {
+        let g = AngleRange { min: -90.0, max: 90.0, step: 3.0 };
+        Self::build(shape, hpr, g, g)
+    }
+
+    /// Number of points per bitmap.
+    pub fn n_points(&self) -> usize {
+        self.n_points
+    }
+
+    /// The visibility at rotation `r` (nearest grid direction; directions beyond the grid use
+    /// its edge).
+    pub fn lookup(&self, r: &Rotation3<f64>) -> &[bool] {
+        let m = r.matrix();
+        let (dx, dy, dz) = (m[(2, 0)], m[(2, 1)], m[(2, 2)]);
+        let pitch = -dy.clamp(-1.0, 1.0).asin().to_degrees();
+        let yaw = dx.atan2(dz).to_degrees();
+        let index = |v: f64, r: &AngleRange| (((v - r.min) / r.step).round().max(0.0) as usize).min(r.len() - 1);
+        let cell = index(yaw, &self.yaw) * self.pitch.len() + index(pitch, &self.pitch);
+        &self.bits[cell * self.n_points..(cell + 1) * self.n_points]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lookup_matches_hpr_and_ignores_roll() {
+        // A pyramid with a point tucked behind the apex's left face.
+        let shape = vec![
+            Vector3::new(-10.0, -10.0, 0.0),
+            Vector3::new(10.0, -10.0, 0.0),
+            Vector3::new(10.0, 10.0, 0.0),
+            Vector3::new(-10.0, 10.0, 0.0),
+            Vector3::new(0.0, 0.0, 10.0),
+            Vector3::new(-4.0, 0.0, 1.0),
+        ];
+        let hpr = PaperHpr::from_frontal(&shape).unwrap();
+        let map = VisibilityMap::build_default(&shape, &hpr).unwrap();
+        for (yaw, pitch) in [(0.0, 0.0), (60.0, 0.0), (-75.0, 12.0), (30.0, -45.0)] {
+            let r0 = EulerAngles::new(yaw, pitch, 0.0).unwrap().to_rotation();
+            let rotated: Vec<_> = shape.iter().map(|p| r0 * p).collect();
+            let direct = hpr.visibility(&rotated).unwrap();
+            assert_eq!(map.lookup(&r0), &direct[..], "yaw {yaw} pitch {pitch}");
+            // A roll about the viewing axis (applied after, in the camera frame) changes nothing.
+            let spun = Rotation3::from_axis_angle(&Vector3::z_axis(), 0.7) * r0;
+            assert_eq!(map.lookup(&spun), &direct[..]);
+        }
+    }
+}
