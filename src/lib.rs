@@ -10,6 +10,7 @@ pub mod estimate;
 pub mod eval;
 pub mod geometry;
 pub mod hpr;
+pub mod model;
 pub mod sfm;
 pub mod shape;
 pub mod synth;

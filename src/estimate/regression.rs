@@ -116,13 +116,14 @@ impl RegressionModel {
         RegressionModel::new(self.n_points, self.eye_left.clone(), self.eye_right.clone(), self.bins.clone(), epsilon)
     }
 
-    /// The eye-line angle φ (degrees, clockwise on screen) and the de-rolled, centred,
-    /// energy-normalized feature vector with `1` appended; `None` when an eye is missing.
-    fn features(&self, points: &[Vector2<f64>], missing: &[bool]) -> Option<(f64, DVector<f64>)> {
+    /// The eye-line angle φ (degrees, clockwise on screen; eyes from the points not flagged in
+    /// `eyes_from`) and the de-rolled, centred, energy-normalized feature vector with the
+    /// `missing` points zeroed and `1` appended; `None` when an eye or the shape is missing.
+    fn features(&self, points: &[Vector2<f64>], eyes_from: &[bool], missing: &[bool]) -> Option<(f64, DVector<f64>)> {
         let anchor = |idx: &[usize]| {
             let (mut s, mut k) = (Vector2::zeros(), 0);
             for &i in idx {
-                if !missing[i] {
+                if !eyes_from[i] {
                     s += points[i];
                     k += 1;
                 }
@@ -178,12 +179,15 @@ impl RegressionModel {
         let mut used = 0;
         let mut mask = vec![false; self.n_points];
         let mut pts = vec![Vector2::zeros(); self.n_points];
+        // The eye line of a training view comes from all its projected eye points, as a client
+        // that sends both eyes gives it.
+        let all = vec![false; self.n_points];
         for v in &self.bins[b].views {
             for i in 0..self.n_points {
                 mask[i] = missing[i] || !v.visible[i];
                 pts[i] = Vector2::new(v.points[i][0], v.points[i][1]);
             }
-            let Some((phi, f)) = self.features(&pts, &mask) else { continue };
+            let Some((phi, f)) = self.features(&pts, &all, &mask) else { continue };
             ff.syger(1.0, &f, &f, 1.0);
             let target = nalgebra::Vector3::new(v.angles.yaw, v.angles.pitch, wrap180(v.angles.roll - phi));
             tf.ger(1.0, &target, &f, 1.0);
@@ -209,9 +213,9 @@ impl RegressionModel {
         Ok(sol)
     }
 
-    fn predict(&self, b: usize, points: &[Vector2<f64>], missing: &[bool]) -> Result<EulerAngles> {
+    fn predict(&self, b: usize, points: &[Vector2<f64>], absent: &[bool], missing: &[bool]) -> Result<EulerAngles> {
         let (phi, f) = self
-            .features(points, missing)
+            .features(points, absent, missing)
             .ok_or_else(|| Error::Degenerate("regression needs both eyes and two or more distinct points".into()))?;
         let sol = self.solve(b, missing)?;
         let out = &sol.w * f;
@@ -232,9 +236,9 @@ impl RegressionModel {
         let points = landmarks.points();
         let missing: Vec<bool> = landmarks.present().iter().map(|p| !p).collect();
         // Coarse pass on bin 0, then the fine bin that holds it.
-        let coarse = self.predict(0, points, &missing)?;
+        let coarse = self.predict(0, points, &missing, &missing)?;
         let bin = self.pick_bin(&coarse);
-        let first = if bin == 0 { coarse } else { self.predict(bin, points, &missing)? };
+        let first = if bin == 0 { coarse } else { self.predict(bin, points, &missing, &missing)? };
         let hidden = hidden_at(&first);
         let mut second_missing = missing.clone();
         for (m, h) in second_missing.iter_mut().zip(&hidden) {
@@ -243,7 +247,7 @@ impl RegressionModel {
         if second_missing == missing || second_missing.iter().filter(|m| !**m).count() < 3 {
             return Ok(RegressionEstimate { angles: first, bin });
         }
-        let angles = self.predict(bin, points, &second_missing)?;
+        let angles = self.predict(bin, points, &missing, &second_missing)?;
         Ok(RegressionEstimate { angles, bin })
     }
 

@@ -2,3 +2,4 @@
 
 pub mod hpr_table;
 pub mod sfm_check;
+pub mod aflw;
