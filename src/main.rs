@@ -16,10 +16,14 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Estimate head pose from landmarks (JSON Lines or CSV) to JSON Lines.
+    Estimate(cli::estimate::EstimateArgs),
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
     Hpr(cli::hpr::HprArgs),
     /// Measure structure from motion on a 3D population seen in synthetic views.
     EvalSfm(cli::eval_sfm::EvalSfmArgs),
+    /// Build a model bundle from 3D shape sets or multi-view 2D sets.
+    Train(cli::train::TrainArgs),
     /// Rebuild a 3D shape from several 2D views by structure from motion.
     Reconstruct(cli::reconstruct::ReconstructArgs),
 }
@@ -27,9 +31,11 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Estimate(a) => cli::estimate::run(a),
         Command::Hpr(a) => cli::hpr::run(a),
         Command::Reconstruct(a) => cli::reconstruct::run(a),
         Command::EvalSfm(a) => cli::eval_sfm::run(a),
+        Command::Train(a) => cli::train::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,8 +1,20 @@
 //! Subcommands of the `facepose` binary: argument parsing, files and printing around the library.
 
+pub mod estimate;
 pub mod eval_sfm;
 pub mod hpr;
 pub mod reconstruct;
+pub mod train;
 
 /// An error of a subcommand, printed with its context chain.
 pub type CliError = Box<dyn std::error::Error + Send + Sync>;
+
+/// The model of `--model DIR`, or the embedded default model.
+pub fn load_model(
+    dir: Option<&std::path::Path>,
+) -> Result<(facepose::model::bundle::Bundle, facepose::model::PoseModel), CliError> {
+    match dir {
+        Some(d) => Ok(facepose::model::store::load_model(d)?),
+        None => Ok(facepose::model::default_model()?),
+    }
+}

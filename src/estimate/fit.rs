@@ -34,7 +34,12 @@ pub struct FitOptions {
 
 impl Default for FitOptions {
     fn default() -> Self {
-        FitOptions { robust: true, hpr_aware: true, contour_weight: 1.0, iterations: 8 }
+        FitOptions {
+            robust: true,
+            hpr_aware: true,
+            contour_weight: 1.0,
+            iterations: 8,
+        }
     }
 }
 
@@ -62,24 +67,37 @@ pub fn fit_rigid(
 ) -> Result<RigidFit> {
     let n = model.len();
     if landmarks.len() != n {
-        return Err(Error::PointCount { what: "landmarks".into(), expected: n, got: landmarks.len() });
+        return Err(Error::PointCount {
+            what: "landmarks".into(),
+            expected: n,
+            got: landmarks.len(),
+        });
     }
     let present = landmarks.n_present();
     if present < 4 {
         return Err(Error::too_few("rigid fit", 4, present));
     }
-    let y: Vec<Vector2<f64>> = landmarks.points().iter().map(|p| Vector2::new(p.x, -p.y)).collect();
+    let y: Vec<Vector2<f64>> = landmarks
+        .points()
+        .iter()
+        .map(|p| Vector2::new(p.x, -p.y))
+        .collect();
     let mut base = vec![0.0; n];
     for (i, w) in base.iter_mut().enumerate() {
         if landmarks.present()[i] {
-            *w = if contour.contains(&i) { opts.contour_weight } else { 1.0 };
+            *w = if contour.contains(&i) {
+                opts.contour_weight
+            } else {
+                1.0
+            };
         }
     }
     let mut weights = base.clone();
     let (mut r, mut s, mut t) = affine_start(model, &y, &weights)?;
     let size = model_size(model, &weights);
 
-    let rounds = 1 + usize::from(opts.robust) * 2 + usize::from(opts.hpr_aware && visibility.is_some()) * 2;
+    let rounds =
+        1 + usize::from(opts.robust) * 2 + usize::from(opts.hpr_aware && visibility.is_some()) * 2;
     let mut hidden_mask: Option<Vec<bool>> = None;
     for round in 0..rounds {
         (r, s, t) = levenberg_marquardt(model, &y, &weights, r, s, t, opts.iterations);
@@ -87,11 +105,8 @@ pub fn fit_rigid(
             break;
         }
         // Reweight: visibility first, then robustness on what is left.
-        if opts.hpr_aware {
-            if let Some(map) = visibility {
-                let vis = map.lookup(&r).to_vec();
-                hidden_mask = Some(vis.iter().map(|v| !v).collect());
-            }
+        if let (true, Some(map)) = (opts.hpr_aware, visibility) {
+            hidden_mask = Some(map.lookup(&r).iter().map(|v| !v).collect());
         }
         for i in 0..n {
             weights[i] = base[i];
@@ -111,19 +126,45 @@ pub fn fit_rigid(
     if !(rms_px.is_finite() && s.is_finite() && s > 0.0) {
         return Err(Error::Numerical("the rigid fit diverged".into()));
     }
-    Ok(RigidFit { rotation: r, scale: s, translation: t, weights, rms_px })
+    Ok(RigidFit {
+        rotation: r,
+        scale: s,
+        translation: t,
+        weights,
+        rms_px,
+    })
 }
 
 /// Root of the weighted mean squared distance of the model points to their weighted centroid.
 fn model_size(model: &[Vector3<f64>], w: &[f64]) -> f64 {
     let sw: f64 = w.iter().sum();
-    let c = model.iter().zip(w).map(|(x, &w)| x * w).sum::<Vector3<f64>>() / sw;
-    (model.iter().zip(w).map(|(x, &w)| w * (x - c).norm_squared()).sum::<f64>() / sw).sqrt()
+    let c = model
+        .iter()
+        .zip(w)
+        .map(|(x, &w)| x * w)
+        .sum::<Vector3<f64>>()
+        / sw;
+    (model
+        .iter()
+        .zip(w)
+        .map(|(x, &w)| w * (x - c).norm_squared())
+        .sum::<f64>()
+        / sw)
+        .sqrt()
 }
 
-fn affine_start(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64]) -> Result<(Rotation3<f64>, f64, Vector2<f64>)> {
+fn affine_start(
+    model: &[Vector3<f64>],
+    y: &[Vector2<f64>],
+    w: &[f64],
+) -> Result<(Rotation3<f64>, f64, Vector2<f64>)> {
     let sw: f64 = w.iter().sum();
-    let cx = model.iter().zip(w).map(|(x, &w)| x * w).sum::<Vector3<f64>>() / sw;
+    let cx = model
+        .iter()
+        .zip(w)
+        .map(|(x, &w)| x * w)
+        .sum::<Vector3<f64>>()
+        / sw;
     let cy = y.iter().zip(w).map(|(p, &w)| p * w).sum::<Vector2<f64>>() / sw;
     let mut xx = Matrix3::zeros();
     let mut yx = Matrix2x3::zeros();
@@ -139,7 +180,9 @@ fn affine_start(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64]) -> Result
     if !spread.is_finite() {
         return Err(Error::non_finite("landmarks"));
     }
-    let inv = xx.try_inverse().ok_or_else(|| Error::Degenerate("the model points in use are coplanar".into()))?;
+    let inv = xx
+        .try_inverse()
+        .ok_or_else(|| Error::Degenerate("the model points in use are coplanar".into()))?;
     let a = yx * inv;
     let svd = a.svd(true, true);
     let (u, vt) = match (svd.u, svd.v_t) {
@@ -148,12 +191,18 @@ fn affine_start(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64]) -> Result
     };
     let (s1, s2) = (svd.singular_values[0], svd.singular_values[1]);
     if spread <= 1e-18 || s2 <= 1e-9 * s1.max(1e-300) {
-        return Err(Error::Degenerate("the landmarks are all at one place or on one line".into()));
+        return Err(Error::Degenerate(
+            "the landmarks are all at one place or on one line".into(),
+        ));
     }
     let rows = u * vt;
     let r1: Vector3<f64> = rows.row(0).transpose();
     let r2: Vector3<f64> = rows.row(1).transpose();
-    let rot = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[r1.transpose(), r2.transpose(), r1.cross(&r2).transpose()]));
+    let rot = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+        r1.transpose(),
+        r2.transpose(),
+        r1.cross(&r2).transpose(),
+    ]));
     let s = 0.5 * (s1 + s2);
     let t = cy - s * (rot * cx).xy();
     Ok((rot, s, t))
@@ -227,7 +276,14 @@ impl Renormalize for Rotation3<f64> {
     }
 }
 
-fn weighted_cost(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64], r: &Rotation3<f64>, s: f64, t: &Vector2<f64>) -> f64 {
+fn weighted_cost(
+    model: &[Vector3<f64>],
+    y: &[Vector2<f64>],
+    w: &[f64],
+    r: &Rotation3<f64>,
+    s: f64,
+    t: &Vector2<f64>,
+) -> f64 {
     model
         .iter()
         .zip(y)
@@ -237,7 +293,14 @@ fn weighted_cost(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64], r: &Rota
         .sum()
 }
 
-fn weighted_rms(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64], r: &Rotation3<f64>, s: f64, t: &Vector2<f64>) -> f64 {
+fn weighted_rms(
+    model: &[Vector3<f64>],
+    y: &[Vector2<f64>],
+    w: &[f64],
+    r: &Rotation3<f64>,
+    s: f64,
+    t: &Vector2<f64>,
+) -> f64 {
     let sw: f64 = w.iter().sum();
     if sw <= 0.0 {
         return f64::NAN;
@@ -246,7 +309,15 @@ fn weighted_rms(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64], r: &Rotat
 }
 
 /// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored).
-fn tukey_reweight(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &mut [f64], r: &Rotation3<f64>, s: f64, t: &Vector2<f64>, floor: f64) {
+fn tukey_reweight(
+    model: &[Vector3<f64>],
+    y: &[Vector2<f64>],
+    w: &mut [f64],
+    r: &Rotation3<f64>,
+    s: f64,
+    t: &Vector2<f64>,
+    floor: f64,
+) {
     let mut res: Vec<f64> = model
         .iter()
         .zip(y)
@@ -314,7 +385,17 @@ mod tests {
         let robust = fit_rigid(&face(), &lm, &[], None, FitOptions::default()).unwrap();
         assert!(geodesic_deg(&robust.rotation, &a.to_rotation()) < 0.01);
         assert_eq!(robust.weights[7], 0.0);
-        let plain = fit_rigid(&face(), &lm, &[], None, FitOptions { robust: false, ..FitOptions::default() }).unwrap();
+        let plain = fit_rigid(
+            &face(),
+            &lm,
+            &[],
+            None,
+            FitOptions {
+                robust: false,
+                ..FitOptions::default()
+            },
+        )
+        .unwrap();
         assert!(geodesic_deg(&plain.rotation, &a.to_rotation()) > 1.0);
     }
 
@@ -325,14 +406,28 @@ mod tests {
         let fit = fit_rigid(&face(), &lm, &[], None, FitOptions::default()).unwrap();
         assert!(geodesic_deg(&fit.rotation, &a.to_rotation()) < 1e-6);
         let few = lm.with_missing([1, 2, 3, 5]);
-        assert!(matches!(fit_rigid(&face(), &few, &[], None, FitOptions::default()), Err(Error::TooFewPoints { .. })));
+        assert!(matches!(
+            fit_rigid(&face(), &few, &[], None, FitOptions::default()),
+            Err(Error::TooFewPoints { .. })
+        ));
     }
 
     #[test]
     fn degenerate_landmarks_are_errors() {
         let same = Shape2::full(vec![Vector2::new(5.0, 5.0); 10]).unwrap();
-        assert!(matches!(fit_rigid(&face(), &same, &[], None, FitOptions::default()), Err(Error::Degenerate(_))));
-        let line = Shape2::full((0..10).map(|i| Vector2::new(i as f64, 2.0 * i as f64)).collect()).unwrap();
-        assert!(matches!(fit_rigid(&face(), &line, &[], None, FitOptions::default()), Err(Error::Degenerate(_))));
+        assert!(matches!(
+            fit_rigid(&face(), &same, &[], None, FitOptions::default()),
+            Err(Error::Degenerate(_))
+        ));
+        let line = Shape2::full(
+            (0..10)
+                .map(|i| Vector2::new(i as f64, 2.0 * i as f64))
+                .collect(),
+        )
+        .unwrap();
+        assert!(matches!(
+            fit_rigid(&face(), &line, &[], None, FitOptions::default()),
+            Err(Error::Degenerate(_))
+        ));
     }
 }

@@ -26,19 +26,41 @@ pub struct MorphableBasis {
 
 impl MorphableBasis {
     /// Validates sizes and finiteness.
-    pub fn new(mean: Vec<Vector3<f64>>, basis: Vec<Vec<Vector3<f64>>>, prior_mean: Vec<f64>) -> Result<Self> {
+    pub fn new(
+        mean: Vec<Vector3<f64>>,
+        basis: Vec<Vec<Vector3<f64>>>,
+        prior_mean: Vec<f64>,
+    ) -> Result<Self> {
         if basis.len() != prior_mean.len() {
-            return Err(Error::param("prior_mean", format!("{} values for {} basis shapes", prior_mean.len(), basis.len())));
+            return Err(Error::param(
+                "prior_mean",
+                format!(
+                    "{} values for {} basis shapes",
+                    prior_mean.len(),
+                    basis.len()
+                ),
+            ));
         }
         if let Some(k) = basis.iter().position(|b| b.len() != mean.len()) {
-            return Err(Error::PointCount { what: format!("basis shape {k}"), expected: mean.len(), got: basis[k].len() });
+            return Err(Error::PointCount {
+                what: format!("basis shape {k}"),
+                expected: mean.len(),
+                got: basis[k].len(),
+            });
         }
-        let finite = mean.iter().chain(basis.iter().flatten()).all(|p| p.iter().all(|v| v.is_finite()))
+        let finite = mean
+            .iter()
+            .chain(basis.iter().flatten())
+            .all(|p| p.iter().all(|v| v.is_finite()))
             && prior_mean.iter().all(|v| v.is_finite());
         if !finite {
             return Err(Error::non_finite("morphable model"));
         }
-        Ok(MorphableBasis { mean, basis, prior_mean })
+        Ok(MorphableBasis {
+            mean,
+            basis,
+            prior_mean,
+        })
     }
 
     /// The shape for coefficients `c`.
@@ -70,7 +92,14 @@ pub struct MorphOptions {
 
 impl Default for MorphOptions {
     fn default() -> Self {
-        MorphOptions { rigid: FitOptions { hpr_aware: false, ..FitOptions::default() }, rounds: 4, noise: 0.01 }
+        MorphOptions {
+            rigid: FitOptions {
+                hpr_aware: false,
+                ..FitOptions::default()
+            },
+            rounds: 4,
+            noise: 0.01,
+        }
     }
 }
 
@@ -95,14 +124,30 @@ pub fn fit_morphable(
     let mut c = model.prior_mean.clone();
     let mut shape = model.shape(&c);
     let mut camera = fit_rigid(&shape, landmarks, contour, visibility, opts.rigid)?;
-    let y: Vec<Vector2<f64>> = landmarks.points().iter().map(|p| Vector2::new(p.x, -p.y)).collect();
+    let y: Vec<Vector2<f64>> = landmarks
+        .points()
+        .iter()
+        .map(|p| Vector2::new(p.x, -p.y))
+        .collect();
     for _ in 0..opts.rounds {
         let (r, s, t) = (camera.rotation, camera.scale, camera.translation);
         let w = &camera.weights;
         let sw: f64 = w.iter().sum();
         let radius = {
-            let c2 = shape.iter().zip(w).map(|(x, &wi)| wi * (r * x).xy()).sum::<Vector2<f64>>() / sw;
-            (shape.iter().zip(w).map(|(x, &wi)| wi * ((r * x).xy() - c2).norm_squared()).sum::<f64>() / sw).sqrt() * s
+            let c2 = shape
+                .iter()
+                .zip(w)
+                .map(|(x, &wi)| wi * (r * x).xy())
+                .sum::<Vector2<f64>>()
+                / sw;
+            (shape
+                .iter()
+                .zip(w)
+                .map(|(x, &wi)| wi * ((r * x).xy() - c2).norm_squared())
+                .sum::<f64>()
+                / sw)
+                .sqrt()
+                * s
         };
         let sigma2 = (opts.noise * radius).powi(2);
         // Normal equations of the coefficient ridge.
@@ -132,10 +177,19 @@ pub fn fit_morphable(
             a[(p, p)] += sigma2;
             b[p] += sigma2 * model.prior_mean[p];
         }
-        let sol = a.cholesky().ok_or_else(|| Error::Numerical("the coefficient system is not positive definite".into()))?.solve(&b);
+        let sol = a
+            .cholesky()
+            .ok_or_else(|| {
+                Error::Numerical("the coefficient system is not positive definite".into())
+            })?
+            .solve(&b);
         c = sol.iter().copied().collect();
         shape = model.shape(&c);
         camera = fit_rigid(&shape, landmarks, contour, visibility, opts.rigid)?;
     }
-    Ok(MorphFit { camera, coefficients: c, shape })
+    Ok(MorphFit {
+        camera,
+        coefficients: c,
+        shape,
+    })
 }

@@ -40,7 +40,11 @@ impl Method {
     /// many points, the rigid fit with five.
     pub fn resolve(self, model: &PoseModel, scheme: &str, present: usize) -> Method {
         match self {
-            Method::Auto if model.morph.is_some() && scheme == model.scheme.name && present >= 20 => Method::FitShape,
+            Method::Auto
+                if model.morph.is_some() && scheme == model.scheme.name && present >= 20 =>
+            {
+                Method::FitShape
+            }
             Method::Auto => Method::Fit,
             m => m,
         }
@@ -49,7 +53,16 @@ impl Method {
 
 impl fmt::Display for Method {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let i = [Method::Auto, Method::Fit, Method::FitShape, Method::Regression, Method::Geometry].iter().position(|m| m == self).unwrap_or(0);
+        let i = [
+            Method::Auto,
+            Method::Fit,
+            Method::FitShape,
+            Method::Regression,
+            Method::Geometry,
+        ]
+        .iter()
+        .position(|m| m == self)
+        .unwrap_or(0);
         f.write_str(Method::NAMES[i])
     }
 }
@@ -63,7 +76,10 @@ impl FromStr for Method {
             "fit-shape" => Ok(Method::FitShape),
             "regression" => Ok(Method::Regression),
             "geometry" => Ok(Method::Geometry),
-            _ => Err(Error::param("method", format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")))),
+            _ => Err(Error::param(
+                "method",
+                format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")),
+            )),
         }
     }
 }
@@ -83,10 +99,19 @@ pub struct Estimate {
 }
 
 /// Estimates the pose of `landmarks` (image pixels) given in `scheme` with `method`.
-pub fn estimate(model: &PoseModel, scheme: &str, landmarks: &Shape2, method: Method) -> Result<Estimate> {
+pub fn estimate(
+    model: &PoseModel,
+    scheme: &str,
+    landmarks: &Shape2,
+    method: Method,
+) -> Result<Estimate> {
     let subset = model.subset(scheme)?;
     if landmarks.len() != subset.scheme.len() {
-        return Err(Error::PointCount { what: format!("landmarks for scheme {scheme}"), expected: subset.scheme.len(), got: landmarks.len() });
+        return Err(Error::PointCount {
+            what: format!("landmarks for scheme {scheme}"),
+            expected: subset.scheme.len(),
+            got: landmarks.len(),
+        });
     }
     let present = landmarks.n_present();
     let method = method.resolve(model, scheme, present);
@@ -94,16 +119,47 @@ pub fn estimate(model: &PoseModel, scheme: &str, landmarks: &Shape2, method: Met
     let contour = &subset.scheme.contour;
     let rotation = match method {
         Method::Fit => {
-            fit_rigid(&subset.mean, landmarks, contour, None, FitOptions { hpr_aware: false, ..FitOptions::default() })?.rotation
+            fit_rigid(
+                &subset.mean,
+                landmarks,
+                contour,
+                None,
+                FitOptions {
+                    hpr_aware: false,
+                    ..FitOptions::default()
+                },
+            )?
+            .rotation
         }
         Method::FitShape => {
-            let morph = model.morph.as_ref().ok_or_else(|| Error::param("method", "fit-shape needs a model with a morphable basis"))?;
-            let full = model.expand(subset, landmarks).ok_or_else(|| Error::param("method", format!("fit-shape does not take scheme {scheme}")))?;
-            fit_morphable(morph, &full, &model.scheme.contour, None, MorphOptions::default())?.camera.rotation
+            let morph = model.morph.as_ref().ok_or_else(|| {
+                Error::param("method", "fit-shape needs a model with a morphable basis")
+            })?;
+            let full = model.expand(subset, landmarks).ok_or_else(|| {
+                Error::param("method", format!("fit-shape does not take scheme {scheme}"))
+            })?;
+            fit_morphable(
+                morph,
+                &full,
+                &model.scheme.contour,
+                None,
+                MorphOptions::default(),
+            )?
+            .camera
+            .rotation
         }
         Method::Regression => {
-            let hidden = |a: &EulerAngles| map.map_visibility(&model.scheme, model.visibility.lookup(&a.to_rotation())).iter().map(|v| !v).collect();
-            subset.regression.estimate(landmarks, &hidden)?.angles.to_rotation()
+            let hidden = |a: &EulerAngles| {
+                map.map_visibility(&model.scheme, model.visibility.lookup(&a.to_rotation()))
+                    .iter()
+                    .map(|v| !v)
+                    .collect()
+            };
+            subset
+                .regression
+                .estimate(landmarks, &hidden)?
+                .angles
+                .to_rotation()
         }
         Method::Geometry => {
             let five = match map {
@@ -115,14 +171,35 @@ pub fn estimate(model: &PoseModel, scheme: &str, landmarks: &Shape2, method: Met
         Method::Auto => unreachable!("resolved above"),
     };
     let visible = map.map_visibility(&model.scheme, model.visibility.lookup(&rotation));
-    let residual = residual(&subset.mean, landmarks, &rotation, &subset.scheme.anchors.eye_left, &subset.scheme.anchors.eye_right);
-    Ok(Estimate { angles: EulerAngles::from_rotation(&rotation), rotation, visible, residual, method })
+    let residual = residual(
+        &subset.mean,
+        landmarks,
+        &rotation,
+        &subset.scheme.anchors.eye_left,
+        &subset.scheme.anchors.eye_right,
+    );
+    Ok(Estimate {
+        angles: EulerAngles::from_rotation(&rotation),
+        rotation,
+        visible,
+        residual,
+        method,
+    })
 }
 
 /// The RMS reprojection error at the best scale and translation for a fixed rotation, over the
 /// projected distance between the eye centres.
-fn residual(mean: &[Vector3<f64>], lm: &Shape2, r: &Rotation3<f64>, eye_l: &[usize], eye_r: &[usize]) -> f64 {
-    let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = lm.iter_present().map(|(i, p)| ((r * mean[i]).xy(), Vector2::new(p.x, -p.y))).collect();
+fn residual(
+    mean: &[Vector3<f64>],
+    lm: &Shape2,
+    r: &Rotation3<f64>,
+    eye_l: &[usize],
+    eye_r: &[usize],
+) -> f64 {
+    let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = lm
+        .iter_present()
+        .map(|(i, p)| ((r * mean[i]).xy(), Vector2::new(p.x, -p.y)))
+        .collect();
     let n = pairs.len() as f64;
     let cq = pairs.iter().map(|(q, _)| q).sum::<Vector2<f64>>() / n;
     let cy = pairs.iter().map(|(_, y)| y).sum::<Vector2<f64>>() / n;
@@ -132,8 +209,17 @@ fn residual(mean: &[Vector3<f64>], lm: &Shape2, r: &Rotation3<f64>, eye_l: &[usi
         den += (q - cq).norm_squared();
     }
     let s = if den > 0.0 { num / den } else { 0.0 };
-    let sse: f64 = pairs.iter().map(|(q, y)| (s * (q - cq) + cy - y).norm_squared()).sum();
-    let eye = |idx: &[usize]| idx.iter().map(|&i| mean[i]).sum::<Vector3<f64>>() / idx.len().max(1) as f64;
+    let sse: f64 = pairs
+        .iter()
+        .map(|(q, y)| (s * (q - cq) + cy - y).norm_squared())
+        .sum();
+    let eye = |idx: &[usize]| {
+        idx.iter().map(|&i| mean[i]).sum::<Vector3<f64>>() / idx.len().max(1) as f64
+    };
     let iod = s.abs() * (r * (eye(eye_r) - eye(eye_l))).xy().norm();
-    if iod > 0.0 { (sse / n).sqrt() / iod } else { f64::INFINITY }
+    if iod > 0.0 {
+        (sse / n).sqrt() / iod
+    } else {
+        f64::INFINITY
+    }
 }

@@ -25,10 +25,19 @@ pub struct VisibilityMap {
 
 impl VisibilityMap {
     /// Runs HPR over the grid for `shape` (frontal, model frame).
-    pub fn build(shape: &[Vector3<f64>], hpr: &PaperHpr, yaw: AngleRange, pitch: AngleRange) -> Result<Self> {
+    pub fn build(
+        shape: &[Vector3<f64>],
+        hpr: &PaperHpr,
+        yaw: AngleRange,
+        pitch: AngleRange,
+    ) -> Result<Self> {
         let n = shape.len();
         if hpr.triangulation().n_points() != n {
-            return Err(Error::PointCount { what: "HPR triangulation".into(), expected: n, got: hpr.triangulation().n_points() });
+            return Err(Error::PointCount {
+                what: "HPR triangulation".into(),
+                expected: n,
+                got: hpr.triangulation().n_points(),
+            });
         }
         let mut bits = Vec::with_capacity(yaw.len() * pitch.len() * n);
         let mut scratch = HprScratch::default();
@@ -44,12 +53,21 @@ impl VisibilityMap {
                 bits.extend_from_slice(&out);
             }
         }
-        Ok(VisibilityMap { yaw, pitch, n_points: n, bits })
+        Ok(VisibilityMap {
+            yaw,
+            pitch,
+            n_points: n,
+            bits,
+        })
     }
 
     /// The default grid: yaw and pitch within ±90° in 3° steps.
     pub fn build_default(shape: &[Vector3<f64>], hpr: &PaperHpr) -> Result<Self> {
-        let g = AngleRange { min: -90.0, max: 90.0, step: 3.0 };
+        let g = AngleRange {
+            min: -90.0,
+            max: 90.0,
+            step: 3.0,
+        };
         Self::build(shape, hpr, g, g)
     }
 
@@ -65,7 +83,9 @@ impl VisibilityMap {
         let (dx, dy, dz) = (m[(2, 0)], m[(2, 1)], m[(2, 2)]);
         let pitch = -dy.clamp(-1.0, 1.0).asin().to_degrees();
         let yaw = dx.atan2(dz).to_degrees();
-        let index = |v: f64, r: &AngleRange| (((v - r.min) / r.step).round().max(0.0) as usize).min(r.len() - 1);
+        let index = |v: f64, r: &AngleRange| {
+            (((v - r.min) / r.step).round().max(0.0) as usize).min(r.len() - 1)
+        };
         let cell = index(yaw, &self.yaw) * self.pitch.len() + index(pitch, &self.pitch);
         &self.bits[cell * self.n_points..(cell + 1) * self.n_points]
     }

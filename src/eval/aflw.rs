@@ -64,11 +64,15 @@ fn wrap(d: f64) -> f64 {
 
 /// The landmarks of a face from a source, in the scheme the source is given in.
 pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str, Shape2)> {
-    let to_shape = |pts: &[[f64; 2]]| Shape2::from_options(&pts.iter().map(|p| Some(*p)).collect::<Vec<_>>());
+    let to_shape =
+        |pts: &[[f64; 2]]| Shape2::from_options(&pts.iter().map(|p| Some(*p)).collect::<Vec<_>>());
     match source {
         Source::Fitted => Ok(("ibug68", to_shape(&face.landmarks_fitted)?)),
         Source::Reannotated => Ok(("ibug68", to_shape(&face.landmarks_reannotated)?)),
-        Source::Five => Ok(("five", to_shape(&face.landmarks_reannotated)?.to_five(&ibug68())?)),
+        Source::Five => Ok((
+            "five",
+            to_shape(&face.landmarks_reannotated)?.to_five(&ibug68())?,
+        )),
     }
 }
 
@@ -90,13 +94,18 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         per_face: Vec::new(),
     };
     for face in faces.iter().filter(|f| f.within_99) {
-        let result = landmarks(face, source).and_then(|(scheme, lm)| estimate(model, scheme, &lm, method));
+        let result =
+            landmarks(face, source).and_then(|(scheme, lm)| estimate(model, scheme, &lm, method));
         let Ok(est) = result else {
             row.failures += 1;
             continue;
         };
         let a: EulerAngles = est.angles;
-        let e = [wrap(a.pitch - face.pitch).abs(), wrap(a.yaw - face.yaw).abs(), wrap(a.roll - face.roll).abs()];
+        let e = [
+            wrap(a.pitch - face.pitch).abs(),
+            wrap(a.yaw - face.yaw).abs(),
+            wrap(a.roll - face.roll).abs(),
+        ];
         let mean = (e[0] + e[1] + e[2]) / 3.0;
         row.faces += 1;
         row.mae_pitch += e[0];
@@ -105,7 +114,10 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         if let Ok(truth) = rotation_from_rows(face.rotation, 1e-4) {
             row.geodesic += geodesic_deg(&est.rotation, &truth);
         }
-        let b = YAW_BINS.iter().position(|&(lo, hi)| face.yaw.abs() >= lo && face.yaw.abs() < hi).unwrap_or(2);
+        let b = YAW_BINS
+            .iter()
+            .position(|&(lo, hi)| face.yaw.abs() >= lo && face.yaw.abs() < hi)
+            .unwrap_or(2);
         row.mae_by_yaw[b] += mean;
         row.faces_by_yaw[b] += 1;
         row.per_face.push((face.yaw.abs(), mean));

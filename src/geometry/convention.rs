@@ -129,8 +129,14 @@ pub fn from_axis_angle(axis: Vector3<f64>, angle_deg: f64) -> Result<Rotation3<f
 /// `atan2(‖skew part‖, symmetric part)` so that it stays exact near 0 and 180.
 pub fn geodesic_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
     let m = a.matrix().transpose() * b.matrix();
-    let skew = Vector3::new(m[(2, 1)] - m[(1, 2)], m[(0, 2)] - m[(2, 0)], m[(1, 0)] - m[(0, 1)]);
-    (0.5 * skew.norm()).atan2(0.5 * (m.trace() - 1.0)).to_degrees()
+    let skew = Vector3::new(
+        m[(2, 1)] - m[(1, 2)],
+        m[(0, 2)] - m[(2, 0)],
+        m[(1, 0)] - m[(0, 1)],
+    );
+    (0.5 * skew.norm())
+        .atan2(0.5 * (m.trace() - 1.0))
+        .to_degrees()
 }
 
 #[cfg(test)]

@@ -1,9 +1,13 @@
 //! A pose model: everything the estimators need for one landmark scheme, trained from a mean
-//! 3D shape (`train.rs`), and its bundle on disk (`bundle.rs`, issue of the service).
+//! 3D shape or a population (`train.rs`, `basis.rs`), its bundle format (`bundle.rs`) and the
+//! bundle on disk (`store.rs`).
 //!
 //! A model serves its own scheme and the sub-schemes it was trained for: for `ibug68`, also
 //! `inner51` (points 17-67) and `five` (anchor means).
 
+pub mod basis;
+pub mod bundle;
+pub mod store;
 pub mod train;
 
 use nalgebra::Vector3;
@@ -17,7 +21,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::PaperHpr;
 use crate::shape::{Scheme, Shape2};
 
-pub use train::{RegressionParams, TrainOptions, train};
+pub use train::{RegressionParams, TrainOptions, train, train_from_population};
 
 /// How a sub-scheme's points come from the model scheme's points.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -47,7 +51,12 @@ impl SubsetMap {
     pub fn map_visibility(&self, scheme: &Scheme, vis: &[bool]) -> Vec<bool> {
         match self {
             SubsetMap::Indices(idx) => idx.iter().map(|&i| vis[i]).collect(),
-            SubsetMap::Anchors => scheme.anchors.as_array().iter().map(|a| a.iter().any(|&i| vis[i])).collect(),
+            SubsetMap::Anchors => scheme
+                .anchors
+                .as_array()
+                .iter()
+                .map(|a| a.iter().any(|&i| vis[i]))
+                .collect(),
         }
     }
 }
@@ -79,13 +88,20 @@ pub struct PoseModel {
 impl PoseModel {
     /// The subset serving `scheme_name`, with a message listing the known ones.
     pub fn subset(&self, scheme_name: &str) -> Result<&Subset> {
-        self.subsets.iter().find(|s| s.scheme.name == scheme_name).ok_or_else(|| Error::InvalidScheme {
-            scheme: scheme_name.into(),
-            reason: format!(
-                "this model serves {}",
-                self.subsets.iter().map(|s| s.scheme.name.as_str()).collect::<Vec<_>>().join(", ")
-            ),
-        })
+        self.subsets
+            .iter()
+            .find(|s| s.scheme.name == scheme_name)
+            .ok_or_else(|| Error::InvalidScheme {
+                scheme: scheme_name.into(),
+                reason: format!(
+                    "this model serves {}",
+                    self.subsets
+                        .iter()
+                        .map(|s| s.scheme.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
     }
 
     /// The model's landmarks expanded from a subset's (missing where the subset has no point).
@@ -101,4 +117,15 @@ impl PoseModel {
             SubsetMap::Anchors => None,
         }
     }
+}
+
+/// The default model's bundle text (built by `facepose train` from ../shared/data/bfm68; see
+/// models/README.md), embedded so that the binary runs without the models folder.
+pub const DEFAULT_BUNDLE: &str = include_str!("../../models/default/model.json");
+
+/// Parses, validates and builds the embedded default model.
+pub fn default_model() -> std::result::Result<(bundle::Bundle, PoseModel), bundle::BundleError> {
+    let b = bundle::Bundle::parse(DEFAULT_BUNDLE)?;
+    let m = b.load()?;
+    Ok((b, m))
 }

@@ -33,23 +33,49 @@ pub struct RegressionParams {
 impl RegressionParams {
     /// The paper's set-up: one model on the ±40° grid at 2°.
     pub fn paper() -> Self {
-        RegressionParams { coarse: PoseGrid::paper(), bins: vec![], epsilons: default_epsilons() }
+        RegressionParams {
+            coarse: PoseGrid::paper(),
+            bins: vec![],
+            epsilons: default_epsilons(),
+        }
     }
 
     /// Wide range: a coarse model over yaw ±90°, pitch ±60° at 6°, and five yaw bins at 2°.
     pub fn wide() -> Self {
         let g = |min: f64, max: f64| PoseGrid {
-            yaw: AngleRange { min, max, step: 2.0 },
-            pitch: AngleRange { min: -40.0, max: 40.0, step: 2.0 },
+            yaw: AngleRange {
+                min,
+                max,
+                step: 2.0,
+            },
+            pitch: AngleRange {
+                min: -40.0,
+                max: 40.0,
+                step: 2.0,
+            },
             roll: AngleRange::fixed(0.0),
         };
         RegressionParams {
             coarse: PoseGrid {
-                yaw: AngleRange { min: -90.0, max: 90.0, step: 6.0 },
-                pitch: AngleRange { min: -60.0, max: 60.0, step: 6.0 },
+                yaw: AngleRange {
+                    min: -90.0,
+                    max: 90.0,
+                    step: 6.0,
+                },
+                pitch: AngleRange {
+                    min: -60.0,
+                    max: 60.0,
+                    step: 6.0,
+                },
                 roll: AngleRange::fixed(0.0),
             },
-            bins: vec![g(-90.0, -46.0), g(-56.0, -14.0), g(-30.0, 30.0), g(14.0, 56.0), g(46.0, 90.0)],
+            bins: vec![
+                g(-90.0, -46.0),
+                g(-56.0, -14.0),
+                g(-30.0, 30.0),
+                g(14.0, 56.0),
+                g(46.0, 90.0),
+            ],
             epsilons: default_epsilons(),
         }
     }
@@ -71,7 +97,11 @@ pub struct TrainOptions {
 
 impl Default for TrainOptions {
     fn default() -> Self {
-        TrainOptions { regression: RegressionParams::wide(), subsets: vec!["inner51".into(), "five".into()], seed: 2011 }
+        TrainOptions {
+            regression: RegressionParams::wide(),
+            subsets: vec!["inner51".into(), "five".into()],
+            seed: 2011,
+        }
     }
 }
 
@@ -86,14 +116,24 @@ pub fn train(
     opts: &TrainOptions,
 ) -> Result<PoseModel> {
     if mean.len() != scheme.len() {
-        return Err(Error::PointCount { what: "mean shape".into(), expected: scheme.len(), got: mean.len() });
+        return Err(Error::PointCount {
+            what: "mean shape".into(),
+            expected: scheme.len(),
+            got: mean.len(),
+        });
     }
     let frontal = Shape3::full(mean.to_vec())?.frontalized(scheme)?;
     let mean: Vec<Vector3<f64>> = frontal.points().to_vec();
     let hpr = PaperHpr::from_frontal(&mean)?;
     let visibility = VisibilityMap::build_default(&mean, &hpr)?;
     let five_mean: Vec<Vector3<f64>> = SubsetMap::Anchors.map_points(scheme, &mean);
-    let geometry = GeometryConstants::from_mean(&[five_mean[0], five_mean[1], five_mean[2], five_mean[3], five_mean[4]])?;
+    let geometry = GeometryConstants::from_mean(&[
+        five_mean[0],
+        five_mean[1],
+        five_mean[2],
+        five_mean[3],
+        five_mean[4],
+    ])?;
 
     let mut subsets = Vec::new();
     let mut names = vec![scheme.name.clone()];
@@ -102,19 +142,63 @@ pub fn train(
         let (sub_scheme, map) = subset_of(scheme, &name)?;
         let sub_mean = map.map_points(scheme, &mean);
         let bins = training_bins(scheme, &map, &mean, &hpr, &opts.regression)?;
-        let eyes = (sub_scheme.anchors.eye_left.clone(), sub_scheme.anchors.eye_right.clone());
+        let eyes = (
+            sub_scheme.anchors.eye_left.clone(),
+            sub_scheme.anchors.eye_right.clone(),
+        );
         let base = RegressionModel::new(sub_scheme.len(), eyes.0, eyes.1, bins, 1e-5)?;
-        let val = validation_views(scheme, &map, &mean, validation, &visibility, &opts.regression, opts.seed)?;
-        let regression = choose_epsilon(&base, &val, &visibility, scheme, &map, &opts.regression.epsilons)?;
-        subsets.push(Subset { scheme: sub_scheme, map, mean: sub_mean, regression });
+        let val = validation_views(scheme, &map, &mean, validation, &opts.regression, opts.seed)?;
+        let regression = choose_epsilon(base, &val, &opts.regression.epsilons)?;
+        subsets.push(Subset {
+            scheme: sub_scheme,
+            map,
+            mean: sub_mean,
+            regression,
+        });
     }
-    Ok(PoseModel { scheme: scheme.clone(), mean, hpr, visibility, geometry, subsets, morph })
+    Ok(PoseModel {
+        scheme: scheme.clone(),
+        mean,
+        hpr,
+        visibility,
+        geometry,
+        subsets,
+        morph,
+    })
+}
+
+/// Trains from a population of 3D shapes (mm, model frame, all points): the mean by generalized
+/// Procrustes analysis, frontalized, and a shape basis of up to `components` principal
+/// components (none when 0) for the shape fit. Every shape also serves as validation for `ε`.
+pub fn train_from_population(
+    scheme: &Scheme,
+    shapes: &[Vec<Vector3<f64>>],
+    components: usize,
+    opts: &TrainOptions,
+) -> Result<PoseModel> {
+    if shapes.len() < 2 {
+        return Err(Error::too_few("training shapes", 2, shapes.len()));
+    }
+    let gpa = crate::geometry::generalized_procrustes(
+        shapes,
+        crate::geometry::procrustes::GpaOptions::default(),
+    )?;
+    let mean = Shape3::full(gpa)?.frontalized(scheme)?.points().to_vec();
+    let basis = if components > 0 {
+        Some(super::basis::pca_basis(shapes, &mean, components, 0.999)?)
+    } else {
+        None
+    };
+    train(scheme, &mean, shapes, basis, opts)
 }
 
 /// The sub-scheme called `name` of `scheme` and how its points map.
 pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     if name == scheme.name {
-        return Ok((scheme.clone(), SubsetMap::Indices((0..scheme.len()).collect())));
+        return Ok((
+            scheme.clone(),
+            SubsetMap::Indices((0..scheme.len()).collect()),
+        ));
     }
     match (scheme.name.as_str(), name) {
         (_, "five") => Ok((five(), SubsetMap::Anchors)),
@@ -122,11 +206,20 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
             let idx: Vec<usize> = (17..68).collect();
             Ok((scheme.subset("inner51", &idx)?, SubsetMap::Indices(idx)))
         }
-        _ => Err(Error::InvalidScheme { scheme: name.into(), reason: format!("not a known subset of {}", scheme.name) }),
+        _ => Err(Error::InvalidScheme {
+            scheme: name.into(),
+            reason: format!("not a known subset of {}", scheme.name),
+        }),
     }
 }
 
-fn training_bins(scheme: &Scheme, map: &SubsetMap, mean: &[Vector3<f64>], hpr: &PaperHpr, p: &RegressionParams) -> Result<Vec<ViewBin>> {
+pub(crate) fn training_bins(
+    scheme: &Scheme,
+    map: &SubsetMap,
+    mean: &[Vector3<f64>],
+    hpr: &PaperHpr,
+    p: &RegressionParams,
+) -> Result<Vec<ViewBin>> {
     let mut synth = ViewSynthesizer::new(mean, hpr)?;
     let mut grids = vec![p.coarse];
     grids.extend(p.bins.iter().copied());
@@ -137,9 +230,21 @@ fn training_bins(scheme: &Scheme, map: &SubsetMap, mean: &[Vector3<f64>], hpr: &
                 .views(&grid)
                 .map(|v| {
                     let v = v?;
-                    let pts: Vec<Vector3<f64>> = v.projected.iter().map(|q| Vector3::new(q.x, q.y, 0.0)).collect();
-                    let points = map.map_points(scheme, &pts).iter().map(|q| [q.x, q.y]).collect();
-                    Ok(TrainingView { angles: v.angles, points, visible: map.map_visibility(scheme, &v.visible) })
+                    let pts: Vec<Vector3<f64>> = v
+                        .projected
+                        .iter()
+                        .map(|q| Vector3::new(q.x, q.y, 0.0))
+                        .collect();
+                    let points = map
+                        .map_points(scheme, &pts)
+                        .iter()
+                        .map(|q| [q.x, q.y])
+                        .collect();
+                    Ok(TrainingView {
+                        angles: v.angles,
+                        points,
+                        visible: map.map_visibility(scheme, &v.visible),
+                    })
                 })
                 .collect::<Result<Vec<_>>>()?;
             Ok(ViewBin { grid, views })
@@ -148,69 +253,96 @@ fn training_bins(scheme: &Scheme, map: &SubsetMap, mean: &[Vector3<f64>], hpr: &
 }
 
 /// Validation views: other shapes (or the mean with 2% landmark noise) at random poses within
-/// the fine bins, in image pixels, with their true angles. Hidden points (by the mean's
-/// visibility at that pose) are left out, as a detector would.
+/// the fine bins, in image pixels, with their true angles, every point present (the common
+/// query; one missing pattern keeps the choice of `ε` cheap).
 fn validation_views(
     scheme: &Scheme,
     map: &SubsetMap,
     mean: &[Vector3<f64>],
     shapes: &[Vec<Vector3<f64>>],
-    visibility: &VisibilityMap,
     p: &RegressionParams,
     seed: u64,
 ) -> Result<Vec<(Shape2, EulerAngles)>> {
     let mut rng = StdRng::seed_from_u64(seed);
-    let grids: Vec<PoseGrid> = if p.bins.is_empty() { vec![p.coarse] } else { p.bins.clone() };
+    let grids: Vec<PoseGrid> = if p.bins.is_empty() {
+        vec![p.coarse]
+    } else {
+        p.bins.clone()
+    };
     let noisy_mean = shapes.is_empty();
-    let count = if noisy_mean { 200 } else { shapes.len().clamp(50, 300) };
-    let noise = Normal::new(0.0, if noisy_mean { 0.02 } else { 0.0 }).map_err(|e| Error::param("noise", e.to_string()))?;
+    let count = if noisy_mean {
+        200
+    } else {
+        shapes.len().clamp(50, 300)
+    };
+    let noise = Normal::new(0.0, if noisy_mean { 0.02 } else { 0.0 })
+        .map_err(|e| Error::param("noise", e.to_string()))?;
     let mut out = Vec::with_capacity(count);
     for k in 0..count {
-        let shape = if noisy_mean { mean } else { &shapes[k % shapes.len()][..] };
+        let shape = if noisy_mean {
+            mean
+        } else {
+            &shapes[k % shapes.len()][..]
+        };
         if shape.len() != mean.len() {
-            return Err(Error::PointCount { what: format!("validation shape {k}"), expected: mean.len(), got: shape.len() });
+            return Err(Error::PointCount {
+                what: format!("validation shape {k}"),
+                expected: mean.len(),
+                got: shape.len(),
+            });
         }
         let g = grids[k % grids.len()];
-        let a = EulerAngles::new(rng.random_range(g.yaw.min..=g.yaw.max), rng.random_range(g.pitch.min..=g.pitch.max), rng.random_range(-15.0..15.0))?;
+        let a = EulerAngles::new(
+            rng.random_range(g.yaw.min..=g.yaw.max),
+            rng.random_range(g.pitch.min..=g.pitch.max),
+            rng.random_range(-15.0..15.0),
+        )?;
         let r = a.to_rotation();
         let cam = WeakPerspective::new(r, 2.0, Vector2::new(225.0, -225.0))?;
         let size = 2.0 * 60.0;
         let pts: Vec<Vector3<f64>> = shape
             .iter()
             .map(|x| {
-                let q = cam.project(x) + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)) * size;
+                let q = cam.project(x)
+                    + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)) * size;
                 Vector3::new(q.x, q.y, 0.0)
             })
             .collect();
-        let vis = map.map_visibility(scheme, visibility.lookup(&r));
-        let sub: Vec<Option<[f64; 2]>> = map.map_points(scheme, &pts).iter().zip(&vis).map(|(q, &v)| v.then_some([q.x, q.y])).collect();
+        let sub: Vec<Option<[f64; 2]>> = map
+            .map_points(scheme, &pts)
+            .iter()
+            .map(|q| Some([q.x, q.y]))
+            .collect();
         out.push((Shape2::from_options(&sub)?, a));
     }
     Ok(out)
 }
 
+/// Keeps the candidate `ε` with the lowest geodesic error on the validation views (one pass, no
+/// hidden-point second pass: every validation point is present).
 fn choose_epsilon(
-    base: &RegressionModel,
+    mut model: RegressionModel,
     val: &[(Shape2, EulerAngles)],
-    visibility: &VisibilityMap,
-    scheme: &Scheme,
-    map: &SubsetMap,
     candidates: &[f64],
 ) -> Result<RegressionModel> {
-    let hidden = |a: &EulerAngles| map.map_visibility(scheme, visibility.lookup(&a.to_rotation())).iter().map(|v| !v).collect();
-    let mut best: Option<(f64, RegressionModel)> = None;
+    let none = |_: &EulerAngles| Vec::new();
+    let mut best: Option<(f64, f64)> = None;
     for &eps in candidates {
-        let m = base.with_epsilon(eps)?;
         let mut err = 0.0;
         for (shape, truth) in val {
-            err += match m.estimate(shape, &hidden) {
-                Ok(e) => crate::geometry::geodesic_deg(&e.angles.to_rotation(), &truth.to_rotation()),
+            err += match model.estimate_with(shape, &none, eps) {
+                Ok(e) => {
+                    crate::geometry::geodesic_deg(&e.angles.to_rotation(), &truth.to_rotation())
+                }
                 Err(_) => 90.0,
             };
         }
-        if best.as_ref().is_none_or(|(b, _)| err < *b) {
-            best = Some((err, m));
+        if best.is_none_or(|(b, _)| err < b) {
+            best = Some((err, eps));
         }
     }
-    best.map(|(_, m)| m).ok_or_else(|| Error::param("epsilons", "no candidate ridge parameter given"))
+    let (_, eps) =
+        best.ok_or_else(|| Error::param("epsilons", "no candidate ridge parameter given"))?;
+    model.set_epsilon(eps)?;
+    Ok(model)
 }

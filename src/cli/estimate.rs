@@ -1,0 +1,217 @@
+//! `facepose estimate`: landmarks in (JSON Lines or CSV, a file or standard input), one pose per
+//! face out (JSON Lines on standard output). A bad line gives `{"id": ..., "error": ...}` and the
+//! run goes on; only unusable arguments or files end it with a non-zero status.
+
+use std::io::{BufRead, BufReader, BufWriter, Read, Write};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+use facepose::estimate::{Method, estimate};
+use facepose::geometry::rotation_rows;
+use facepose::shape::Shape2;
+use serde_json::{Value, json};
+
+use super::CliError;
+
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum Format {
+    /// Pick by the file name (.csv) or the first character of the input.
+    Auto,
+    Jsonl,
+    Csv,
+}
+
+#[derive(Args)]
+pub struct EstimateArgs {
+    /// Input file, or - for standard input.
+    #[arg(long)]
+    input: PathBuf,
+    /// Landmark scheme of the input.
+    #[arg(long, default_value = "ibug68")]
+    scheme: String,
+    /// Estimator (auto picks the most accurate for the input).
+    #[arg(long, default_value = "auto")]
+    method: String,
+    /// Model bundle directory (default: the embedded default model).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = Format::Auto)]
+    format: Format,
+}
+
+pub fn run(a: EstimateArgs) -> Result<(), CliError> {
+    let method: Method = a.method.parse()?;
+    let (_, model) = super::load_model(a.model.as_deref())?;
+    let subset = model.subset(&a.scheme)?;
+    let n = subset.scheme.len();
+    let reader: Box<dyn Read> = if a.input.as_os_str() == "-" {
+        Box::new(std::io::stdin().lock())
+    } else {
+        Box::new(
+            std::fs::File::open(&a.input)
+                .map_err(|e| format!("cannot read {}: {e}", a.input.display()))?,
+        )
+    };
+    let mut lines = BufReader::new(reader).lines().peekable();
+    let format = match a.format {
+        Format::Auto
+            if a.input
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("csv")) =>
+        {
+            Format::Csv
+        }
+        Format::Auto => match lines.peek() {
+            Some(Ok(l)) if !l.trim_start().starts_with('{') && !l.trim().is_empty() => Format::Csv,
+            _ => Format::Jsonl,
+        },
+        f => f,
+    };
+    let out = std::io::stdout();
+    let mut out = BufWriter::new(out.lock());
+    let start = Instant::now();
+    let mut last_report = Instant::now();
+    let (mut done, mut failed) = (0usize, 0usize);
+    let mut csv_has_id = None;
+    for (k, line) in lines.enumerate() {
+        let line = line.map_err(|e| format!("{}: line {}: {e}", a.input.display(), k + 1))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let (id, parsed) = match format {
+            Format::Csv => {
+                if k == 0
+                    && line
+                        .split(',')
+                        .next()
+                        .is_some_and(|c| c.trim().parse::<f64>().is_err() && !c.trim().is_empty())
+                {
+                    csv_has_id = Some(line.split(',').count() == 2 * n + 1);
+                    continue;
+                }
+                parse_csv(&line, n, csv_has_id)
+            }
+            _ => parse_jsonl(&line, n),
+        };
+        let result = parsed.and_then(|shape| {
+            estimate(&model, &a.scheme, &shape, method).map_err(|e| e.to_string())
+        });
+        let value = match result {
+            Ok(e) => {
+                let mut v = json!({
+                    "yaw": e.angles.yaw, "pitch": e.angles.pitch, "roll": e.angles.roll,
+                    "rotation": rotation_rows(&e.rotation), "method": e.method.to_string(),
+                    "visible": e.visible, "residual": e.residual,
+                });
+                if let Some(id) = id {
+                    v.as_object_mut().map(|o| o.insert("id".into(), id));
+                }
+                v
+            }
+            Err(msg) => {
+                failed += 1;
+                json!({"id": id.unwrap_or(Value::Null), "line": k + 1, "error": msg})
+            }
+        };
+        writeln!(out, "{value}")?;
+        done += 1;
+        if last_report.elapsed() > Duration::from_secs(2) {
+            last_report = Instant::now();
+            eprintln!(
+                "{done} faces ({failed} with errors), {:.0}/s",
+                done as f64 / start.elapsed().as_secs_f64()
+            );
+        }
+    }
+    out.flush()?;
+    if start.elapsed() > Duration::from_secs(2) {
+        eprintln!(
+            "done: {done} faces, {failed} with errors, in {:.2?}",
+            start.elapsed()
+        );
+    }
+    Ok(())
+}
+
+/// One JSON Lines record: `{"landmarks": [[x, y] | null, ...], "id": ...}`.
+fn parse_jsonl(line: &str, n: usize) -> (Option<Value>, Result<Shape2, String>) {
+    let v: Value = match serde_json::from_str(line) {
+        Ok(v) => v,
+        Err(e) => return (None, Err(format!("not valid JSON: {e}"))),
+    };
+    let id = v.get("id").cloned();
+    if let Some(bad) = id.as_ref().filter(|i| !(i.is_string() || i.is_number())) {
+        return (
+            None,
+            Err(format!("\"id\" must be a string or a number, got {bad}")),
+        );
+    }
+    let shape = (|| {
+        let lm = v
+            .get("landmarks")
+            .ok_or("missing \"landmarks\"")?
+            .as_array()
+            .ok_or("\"landmarks\" must be an array")?;
+        if lm.len() != n {
+            return Err(format!(
+                "\"landmarks\" has {} points, the scheme has {n}",
+                lm.len()
+            ));
+        }
+        let pts = lm
+            .iter()
+            .enumerate()
+            .map(|(i, p)| match p {
+                Value::Null => Ok(None),
+                Value::Array(xy) if xy.len() == 2 => match (xy[0].as_f64(), xy[1].as_f64()) {
+                    (Some(x), Some(y)) => Ok(Some([x, y])),
+                    _ => Err(format!("landmark {i} must be [x, y] numbers or null")),
+                },
+                _ => Err(format!("landmark {i} must be [x, y] numbers or null")),
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        Shape2::from_options(&pts).map_err(|e| e.to_string())
+    })();
+    (id, shape)
+}
+
+/// One CSV row: `[id,]x0,y0,...,x{n-1},y{n-1}`, empty cells for a missing point.
+fn parse_csv(
+    line: &str,
+    n: usize,
+    has_id: Option<bool>,
+) -> (Option<Value>, Result<Shape2, String>) {
+    let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+    let has_id = has_id.unwrap_or(cells.len() == 2 * n + 1);
+    let (id, coords) = if has_id {
+        (Some(json!(cells[0])), &cells[1..])
+    } else {
+        (None, &cells[..])
+    };
+    if coords.len() != 2 * n {
+        return (
+            id,
+            Err(format!(
+                "{} coordinate cells, expected {} (x and y for {n} points)",
+                coords.len(),
+                2 * n
+            )),
+        );
+    }
+    let pts = (0..n)
+        .map(|i| match (coords[2 * i], coords[2 * i + 1]) {
+            ("", "") => Ok(None),
+            (x, y) => match (x.parse::<f64>(), y.parse::<f64>()) {
+                (Ok(x), Ok(y)) => Ok(Some([x, y])),
+                _ => Err(format!(
+                    "point {i}: {x:?}, {y:?} are not numbers (leave both empty for a missing point)"
+                )),
+            },
+        })
+        .collect::<Result<Vec<_>, String>>();
+    (
+        id,
+        pts.and_then(|p| Shape2::from_options(&p).map_err(|e| e.to_string())),
+    )
+}

@@ -1,0 +1,216 @@
+//! `facepose train`: builds a model bundle from 3D shape sets (or multi-view 2D sets, rebuilt by
+//! structure from motion first) and writes it atomically.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::{Args, ValueEnum};
+use facepose::data::{load_multi_view, load_population};
+use facepose::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
+use facepose::model::store::write_bundle_dir;
+use facepose::model::{RegressionParams, TrainOptions, train_from_population};
+use facepose::sfm::{SfmOptions, reconstruct};
+use facepose::shape::{Scheme, Shape2};
+use nalgebra::Vector3;
+
+use super::CliError;
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum Grid {
+    /// The paper's: yaw and pitch within ±40° at 2°, one model.
+    Paper,
+    /// Coarse ±90° yaw / ±60° pitch model and five yaw bins at 2°.
+    Wide,
+}
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// 3D shape sets (population JSON); repeat to combine files.
+    #[arg(long, required_unless_present = "views", conflicts_with = "views")]
+    shapes: Vec<PathBuf>,
+    /// A multi-view 2D set (docs/FORMATS.md), rebuilt by structure from motion.
+    #[arg(long)]
+    views: Option<PathBuf>,
+    /// The bundle directory to create (must not exist).
+    #[arg(long)]
+    out: PathBuf,
+    /// Use shapes [skip, skip + first) of the combined sets (default: all).
+    #[arg(long)]
+    first: Option<usize>,
+    #[arg(long, default_value_t = 0)]
+    skip: usize,
+    #[arg(long, value_enum, default_value_t = Grid::Wide)]
+    grid: Grid,
+    /// Sub-schemes to serve besides the model's own.
+    #[arg(long, value_delimiter = ',', default_value = "inner51,five")]
+    subsets: Vec<String>,
+    /// Principal components of the shape basis for `fit-shape` (0: none).
+    #[arg(long, default_value_t = 40)]
+    components: usize,
+    /// Model name (default: the --out directory's name).
+    #[arg(long)]
+    name: Option<String>,
+    #[arg(long, default_value = "1")]
+    model_version: String,
+    /// Creation time to record (RFC 3339; default: now). Fix it to rebuild byte for byte.
+    #[arg(long)]
+    created: Option<String>,
+}
+
+pub fn run(a: TrainArgs) -> Result<(), CliError> {
+    let start = Instant::now();
+    let mut sources = Vec::new();
+    let mut shapes: Vec<Vec<Vector3<f64>>> = Vec::new();
+    let scheme_name;
+    if let Some(views) = &a.views {
+        let bytes =
+            std::fs::read(views).map_err(|e| format!("cannot read {}: {e}", views.display()))?;
+        let set = load_multi_view(views)?;
+        let scheme = Scheme::builtin(&set.scheme)
+            .ok_or_else(|| format!("{}: unknown scheme {:?}", views.display(), set.scheme))?;
+        let nose = scheme.anchors.nose_tip[0];
+        for (k, subject) in set.subjects.iter().enumerate() {
+            let vs = subject
+                .views
+                .iter()
+                .map(|v| {
+                    if v.len() == scheme.len() {
+                        Shape2::from_options(v).map_err(|e| e.to_string())
+                    } else {
+                        Err(format!("{} points, expected {}", v.len(), scheme.len()))
+                    }
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| format!("{}: subject {k}: {e}", views.display()))?;
+            let rec = reconstruct(&vs, SfmOptions::with_nose_tip(nose))
+                .map_err(|e| format!("{}: subject {k}: {e}", views.display()))?;
+            shapes.push(rec.shape);
+        }
+        eprintln!(
+            "reconstructed {} subjects by structure from motion",
+            shapes.len()
+        );
+        sources.push(SourceFile {
+            path: views.display().to_string(),
+            sha256: sha256_hex(&bytes),
+            shapes: shapes.len(),
+        });
+        scheme_name = set.scheme;
+    } else {
+        let mut name = None;
+        for path in &a.shapes {
+            let bytes =
+                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            let pop = load_population(path)?;
+            if name.as_ref().is_some_and(|n| n != &pop.scheme) {
+                return Err(format!(
+                    "{}: scheme {:?} differs from the other files'",
+                    path.display(),
+                    pop.scheme
+                )
+                .into());
+            }
+            name = Some(pop.scheme.clone());
+            sources.push(SourceFile {
+                path: path.display().to_string(),
+                sha256: sha256_hex(&bytes),
+                shapes: pop.shapes.len(),
+            });
+            shapes.extend(pop.shapes);
+        }
+        scheme_name = name.ok_or("no --shapes given")?;
+    }
+    let scheme = Scheme::builtin(&scheme_name).ok_or_else(|| {
+        format!(
+            "unknown scheme {scheme_name:?} (known: {})",
+            Scheme::BUILTIN.join(", ")
+        )
+    })?;
+    let total = shapes.len();
+    let end = a.first.map(|f| a.skip + f).unwrap_or(total);
+    if a.skip >= total || end > total {
+        return Err(format!(
+            "--skip {} --first {:?} is outside the {total} shapes",
+            a.skip, a.first
+        )
+        .into());
+    }
+    let shapes = &shapes[a.skip..end];
+    if let Some((k, s)) = shapes
+        .iter()
+        .enumerate()
+        .find(|(_, s)| s.len() != scheme.len())
+    {
+        return Err(format!(
+            "shape {} has {} points, scheme {} has {}",
+            a.skip + k,
+            s.len(),
+            scheme.name,
+            scheme.len()
+        )
+        .into());
+    }
+    eprintln!(
+        "training on {} shapes ({} grid, subsets {})",
+        shapes.len(),
+        match a.grid {
+            Grid::Paper => "paper",
+            Grid::Wide => "wide",
+        },
+        a.subsets.join(",")
+    );
+    let opts = TrainOptions {
+        regression: match a.grid {
+            Grid::Paper => RegressionParams::paper(),
+            Grid::Wide => RegressionParams::wide(),
+        },
+        subsets: a.subsets.clone(),
+        ..TrainOptions::default()
+    };
+    let model = train_from_population(&scheme, shapes, a.components, &opts)?;
+    eprintln!("trained in {:.2?}", start.elapsed());
+    let created = match a.created {
+        Some(c) => c,
+        None => time::OffsetDateTime::now_utc()
+            .format(&time::format_description::well_known::Rfc3339)?,
+    };
+    let name = a.name.clone().unwrap_or_else(|| {
+        a.out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "model".into())
+    });
+    let provenance = Provenance {
+        sources,
+        // The command without --out, so that a rebuild elsewhere gives the same bytes.
+        command: command_without_out(),
+        notes: format!(
+            "shapes {}..{} of the sources; mean by generalized Procrustes analysis",
+            a.skip, end
+        ),
+    };
+    let bundle = Bundle::from_model(&model, &opts, &name, &a.model_version, &created, provenance)?;
+    write_bundle_dir(&a.out, &bundle)?;
+    eprintln!(
+        "wrote {} ({} in all)",
+        a.out.display(),
+        format_args!("{:.2?}", start.elapsed())
+    );
+    Ok(())
+}
+
+fn command_without_out() -> String {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut out = Vec::new();
+    let mut skip = false;
+    for a in &args {
+        if skip {
+            skip = false;
+        } else if a == "--out" {
+            skip = true;
+        } else if !a.starts_with("--out=") {
+            out.push(a.clone());
+        }
+    }
+    format!("facepose {}", out.join(" "))
+}

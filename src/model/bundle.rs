@@ -1,0 +1,362 @@
+//! The model bundle format (`models/<name>/model.json`): a readable JSON document with the
+//! scheme, the frontal mean shape and its triangulation, the training parameters, the regression
+//! matrices per subset and view bin, the optional shape basis, the geometric constants, version,
+//! creation time, provenance and a checksum. Text in, text out: the file I/O is in `store.rs`.
+//!
+//! The checksum is `sha256:` + the SHA-256 of the compact JSON of the document with an empty
+//! `checksum` field, so it covers every value and no formatting.
+
+use nalgebra::{DMatrix, Vector3};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+use super::train::{TrainOptions, subset_of, training_bins};
+use super::{PoseModel, Subset};
+use crate::error::Error;
+use crate::estimate::geometric::GeometryConstants;
+use crate::estimate::morph_fit::MorphableBasis;
+use crate::estimate::regression::RegressionModel;
+use crate::estimate::visibility_map::VisibilityMap;
+use crate::hpr::{PaperHpr, Triangulation};
+use crate::shape::Scheme;
+
+/// The `format` field of every bundle.
+pub const FORMAT: &str = "facepose-model";
+/// The schema version this build reads and writes.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// A bundle that could not be read: the message names the field and what is wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum BundleError {
+    #[error("not valid JSON for a model bundle at {field}: {reason}")]
+    Parse { field: String, reason: String },
+    #[error("{field}: {reason}")]
+    Invalid { field: String, reason: String },
+    #[error(
+        "checksum mismatch: the file says {expected}, its content hashes to {actual} (edited or truncated)"
+    )]
+    Checksum { expected: String, actual: String },
+    #[error("{field}: {source}")]
+    Core { field: String, source: Error },
+}
+
+fn invalid(field: impl Into<String>, reason: impl Into<String>) -> BundleError {
+    BundleError::Invalid {
+        field: field.into(),
+        reason: reason.into(),
+    }
+}
+
+fn core(field: &str) -> impl FnOnce(Error) -> BundleError + '_ {
+    move |source| BundleError::Core {
+        field: field.into(),
+        source,
+    }
+}
+
+/// Where a model came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The source files with their SHA-256.
+    pub sources: Vec<SourceFile>,
+    /// The command that built the model.
+    pub command: String,
+    /// Free text: licences, protocol.
+    pub notes: String,
+}
+
+/// One source file of a model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceFile {
+    pub path: String,
+    pub sha256: String,
+    pub shapes: usize,
+}
+
+/// The regression of one subset: `ε` and one `3 x (2n + 1)` matrix per view bin (bin 0 coarse).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegressionEntry {
+    pub scheme: String,
+    pub epsilon: f64,
+    pub matrices: Vec<Vec<Vec<f64>>>,
+}
+
+/// A shape basis: `shape = mean + Σ c_k components_k`, `c ~ N(prior_mean, I)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BasisEntry {
+    pub mean: Vec<[f64; 3]>,
+    pub components: Vec<Vec<[f64; 3]>>,
+    pub prior_mean: Vec<f64>,
+}
+
+/// The bundle document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Bundle {
+    pub format: String,
+    pub schema_version: u32,
+    pub name: String,
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    pub provenance: Provenance,
+    pub scheme: Scheme,
+    /// Frontal mean shape, model frame, mm.
+    pub mean: Vec<[f64; 3]>,
+    /// Delaunay triangulation of the frontal mean (HPR).
+    pub triangles: Vec<[usize; 3]>,
+    pub geometry: GeometryConstants,
+    pub training: TrainOptions,
+    pub regressions: Vec<RegressionEntry>,
+    pub shape_basis: Option<BasisEntry>,
+    pub checksum: String,
+}
+
+fn to_arrays(v: &[Vector3<f64>]) -> Vec<[f64; 3]> {
+    v.iter().map(|p| [p.x, p.y, p.z]).collect()
+}
+
+fn to_vectors(v: &[[f64; 3]]) -> Vec<Vector3<f64>> {
+    v.iter().map(|p| Vector3::from(*p)).collect()
+}
+
+impl Bundle {
+    /// The bundle of a trained model, checksummed.
+    pub fn from_model(
+        model: &PoseModel,
+        training: &TrainOptions,
+        name: &str,
+        version: &str,
+        created: &str,
+        provenance: Provenance,
+    ) -> Result<Bundle, BundleError> {
+        let regressions = model
+            .subsets
+            .iter()
+            .map(|s| {
+                let m = s
+                    .regression
+                    .full_pattern_matrices()
+                    .map_err(core("regressions"))?;
+                Ok(RegressionEntry {
+                    scheme: s.scheme.name.clone(),
+                    epsilon: s.regression.epsilon(),
+                    matrices: m
+                        .iter()
+                        .map(|w| w.row_iter().map(|r| r.iter().copied().collect()).collect())
+                        .collect(),
+                })
+            })
+            .collect::<Result<Vec<_>, BundleError>>()?;
+        let shape_basis = model.morph.as_ref().map(|b| BasisEntry {
+            mean: to_arrays(&b.mean),
+            components: b.basis.iter().map(|c| to_arrays(c)).collect(),
+            prior_mean: b.prior_mean.clone(),
+        });
+        let mut bundle = Bundle {
+            format: FORMAT.into(),
+            schema_version: SCHEMA_VERSION,
+            name: name.into(),
+            version: version.into(),
+            created: created.into(),
+            provenance,
+            scheme: model.scheme.clone(),
+            mean: to_arrays(&model.mean),
+            triangles: model.hpr.triangulation().triangles().to_vec(),
+            geometry: model.geometry,
+            training: training.clone(),
+            regressions,
+            shape_basis,
+            checksum: String::new(),
+        };
+        bundle.checksum = bundle.compute_checksum()?;
+        Ok(bundle)
+    }
+
+    /// `sha256:<hex>` of the compact JSON with an empty checksum field.
+    pub fn compute_checksum(&self) -> Result<String, BundleError> {
+        let mut copy = self.clone();
+        copy.checksum.clear();
+        let text = serde_json::to_string(&copy).map_err(|e| invalid("checksum", e.to_string()))?;
+        let digest = Sha256::digest(text.as_bytes());
+        Ok(format!("sha256:{}", hex(&digest)))
+    }
+
+    /// The pretty JSON text of the bundle (what is written to disk).
+    pub fn to_json(&self) -> String {
+        let mut s = serde_json::to_string_pretty(self).expect("a bundle always serializes");
+        s.push('\n');
+        s
+    }
+
+    /// Parses a bundle's text, naming the field on error. Does not validate (see [`Bundle::load`]).
+    pub fn parse(text: &str) -> Result<Bundle, BundleError> {
+        let de = &mut serde_json::Deserializer::from_str(text);
+        serde_path_to_error::deserialize(de).map_err(|e| BundleError::Parse {
+            field: e.path().to_string(),
+            reason: e.inner().to_string(),
+        })
+    }
+
+    /// Validates everything (format, schema version, checksum, dimensions, finite numbers) and
+    /// builds the model: HPR over the stored triangulation, the visibility map, and the
+    /// regressions with their training views regenerated from the mean and the stored grids and
+    /// the stored matrices as the all-points-present solutions.
+    pub fn load(&self) -> Result<PoseModel, BundleError> {
+        if self.format != FORMAT {
+            return Err(invalid(
+                "format",
+                format!("expected {FORMAT:?}, found {:?}", self.format),
+            ));
+        }
+        if self.schema_version != SCHEMA_VERSION {
+            return Err(invalid(
+                "schema_version",
+                format!(
+                    "this build reads version {SCHEMA_VERSION}, the file is version {}",
+                    self.schema_version
+                ),
+            ));
+        }
+        let actual = self.compute_checksum()?;
+        if actual != self.checksum {
+            return Err(BundleError::Checksum {
+                expected: self.checksum.clone(),
+                actual,
+            });
+        }
+        time::OffsetDateTime::parse(
+            &self.created,
+            &time::format_description::well_known::Rfc3339,
+        )
+        .map_err(|e| invalid("created", format!("not an RFC 3339 time: {e}")))?;
+        self.scheme.validate().map_err(core("scheme"))?;
+        let n = self.scheme.len();
+        if self.mean.len() != n {
+            return Err(invalid(
+                "mean",
+                format!("{} points, the scheme has {n}", self.mean.len()),
+            ));
+        }
+        if let Some(i) = self
+            .mean
+            .iter()
+            .position(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Err(invalid(format!("mean[{i}]"), "not a finite number"));
+        }
+        let mean = to_vectors(&self.mean);
+        let tri = Triangulation::new(&mean, self.triangles.clone()).map_err(core("triangles"))?;
+        let hpr = PaperHpr::new(tri);
+        let visibility = VisibilityMap::build_default(&mean, &hpr).map_err(core("triangles"))?;
+        let g = self.geometry;
+        if !(g.lf.is_finite() && g.ln.is_finite() && g.ln > 0.0) {
+            return Err(invalid("geometry", "lf and ln must be finite, ln positive"));
+        }
+        let mut subsets = Vec::new();
+        for (k, entry) in self.regressions.iter().enumerate() {
+            let field = format!("regressions[{k}]");
+            let (scheme, map) = subset_of(&self.scheme, &entry.scheme).map_err(core(&field))?;
+            let bins = training_bins(&self.scheme, &map, &mean, &hpr, &self.training.regression)
+                .map_err(core(&field))?;
+            if entry.matrices.len() != bins.len() {
+                return Err(invalid(
+                    format!("{field}.matrices"),
+                    format!(
+                        "{} matrices for {} view bins of the training grids",
+                        entry.matrices.len(),
+                        bins.len()
+                    ),
+                ));
+            }
+            let d = 2 * scheme.len() + 1;
+            let mut matrices = Vec::new();
+            for (b, m) in entry.matrices.iter().enumerate() {
+                if m.len() != 3 || m.iter().any(|r| r.len() != d) {
+                    return Err(invalid(
+                        format!("{field}.matrices[{b}]"),
+                        format!("expected 3 rows of {d} numbers"),
+                    ));
+                }
+                if m.iter().flatten().any(|v| !v.is_finite()) {
+                    return Err(invalid(
+                        format!("{field}.matrices[{b}]"),
+                        "not a finite number",
+                    ));
+                }
+                matrices.push(DMatrix::from_fn(3, d, |i, j| m[i][j]));
+            }
+            let eyes = (
+                scheme.anchors.eye_left.clone(),
+                scheme.anchors.eye_right.clone(),
+            );
+            let regression =
+                RegressionModel::new(scheme.len(), eyes.0, eyes.1, bins, entry.epsilon)
+                    .map_err(core(&field))?;
+            regression
+                .seed_full_pattern(matrices)
+                .map_err(core(&field))?;
+            let sub_mean = map.map_points(&self.scheme, &mean);
+            subsets.push(Subset {
+                scheme,
+                map,
+                mean: sub_mean,
+                regression,
+            });
+        }
+        if subsets
+            .first()
+            .map(|s| s.scheme.name != self.scheme.name)
+            .unwrap_or(true)
+        {
+            return Err(invalid(
+                "regressions",
+                format!(
+                    "the first entry must be the model's own scheme {:?}",
+                    self.scheme.name
+                ),
+            ));
+        }
+        let morph = match &self.shape_basis {
+            Some(b) => {
+                if b.mean.len() != n || b.components.iter().any(|c| c.len() != n) {
+                    return Err(invalid(
+                        "shape_basis",
+                        format!("every shape must have {n} points"),
+                    ));
+                }
+                Some(
+                    MorphableBasis::new(
+                        to_vectors(&b.mean),
+                        b.components.iter().map(|c| to_vectors(c)).collect(),
+                        b.prior_mean.clone(),
+                    )
+                    .map_err(core("shape_basis"))?,
+                )
+            }
+            None => None,
+        };
+        Ok(PoseModel {
+            scheme: self.scheme.clone(),
+            mean,
+            hpr,
+            visibility,
+            geometry: g,
+            subsets,
+            morph,
+        })
+    }
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 of some bytes as lower-case hex (for provenance).
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex(&Sha256::digest(bytes))
+}
