@@ -70,26 +70,26 @@ mod tests {
 
     #[test]
     fn recovers_a_one_dimensional_family() {
-        // Shapes = base + a * direction: one component with the spread of a.
-        let base: Vec<Vector3<f64>> = (0..6)
+        // Shapes = base + a * dir with a size mode (rigid alignment keeps size): one component
+        // whose norm is the spread of a, sqrt(2.5), since |dir| = 1.
+        let raw: Vec<Vector3<f64>> = (0..6)
             .map(|i| Vector3::new(i as f64 * 10.0, (i * i) as f64, (i % 3) as f64 * 7.0))
             .collect();
-        let dir: Vec<Vector3<f64>> = (0..6)
-            .map(|i| Vector3::new(0.0, 0.0, if i % 2 == 0 { 1.0 } else { -1.0 }))
-            .collect();
-        let coefs = [-2.0, -1.0, 0.0, 1.0, 2.0];
-        let shapes: Vec<Vec<Vector3<f64>>> = coefs
+        let c = raw.iter().sum::<Vector3<f64>>() / 6.0;
+        let base: Vec<Vector3<f64>> = raw.iter().map(|p| p - c).collect();
+        let len = base.iter().map(|p| p.norm_squared()).sum::<f64>().sqrt();
+        let shapes: Vec<Vec<Vector3<f64>>> = [-2.0, -1.0, 0.0, 1.0, 2.0]
             .iter()
-            .map(|a| base.iter().zip(&dir).map(|(b, d)| b + *a * d).collect())
+            .map(|a| base.iter().map(|p| p + *a * p / len).collect())
             .collect();
         let b = pca_basis(&shapes, &base, 10, 0.9999).unwrap();
         assert_eq!(b.basis.len(), 1);
-        // sd of a is sqrt(2.5); the basis shape has norm sd * |dir| = sqrt(2.5) * sqrt(6).
         let norm: f64 = b.basis[0]
             .iter()
             .map(|v| v.norm_squared())
             .sum::<f64>()
             .sqrt();
-        assert!((norm - (2.5f64 * 6.0).sqrt()).abs() < 1e-6, "{norm}");
+        assert!((norm - 2.5f64.sqrt()).abs() < 1e-9, "{norm}");
+        assert_eq!(b.prior_mean, vec![0.0]);
     }
 }
