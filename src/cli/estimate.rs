@@ -16,7 +16,7 @@ use super::CliError;
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 pub enum Format {
-    /// Pick by the file name (.csv) or the first character of the input.
+    /// CSV for a .csv file or a first line with commas that is not a JSON object; else JSON Lines.
     Auto,
     Jsonl,
     Csv,
@@ -63,7 +63,7 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
             Format::Csv
         }
         Format::Auto => match lines.peek() {
-            Some(Ok(l)) if !l.trim_start().starts_with('{') && !l.trim().is_empty() => Format::Csv,
+            Some(Ok(l)) if !l.trim_start().starts_with('{') && l.contains(',') => Format::Csv,
             _ => Format::Jsonl,
         },
         f => f,
