@@ -20,6 +20,8 @@ enum Command {
     Estimate(cli::estimate::EstimateArgs),
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
     Hpr(cli::hpr::HprArgs),
+    /// Accuracy reports: real faces with ground truth, or the paper's protocol.
+    Eval(cli::eval::EvalArgs),
     /// Measure structure from motion on a 3D population seen in synthetic views.
     EvalSfm(cli::eval_sfm::EvalSfmArgs),
     /// Build a model bundle from 3D shape sets or multi-view 2D sets.
@@ -34,6 +36,7 @@ fn main() -> ExitCode {
         Command::Estimate(a) => cli::estimate::run(a),
         Command::Hpr(a) => cli::hpr::run(a),
         Command::Reconstruct(a) => cli::reconstruct::run(a),
+        Command::Eval(a) => cli::eval::run(a),
         Command::EvalSfm(a) => cli::eval_sfm::run(a),
         Command::Train(a) => cli::train::run(a),
     };

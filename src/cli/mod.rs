@@ -1,6 +1,7 @@
 //! Subcommands of the `facepose` binary: argument parsing, files and printing around the library.
 
 pub mod estimate;
+pub mod eval;
 pub mod eval_sfm;
 pub mod hpr;
 pub mod reconstruct;

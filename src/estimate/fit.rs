@@ -95,31 +95,40 @@ pub fn fit_rigid(
     let mut weights = base.clone();
     let (mut r, mut s, mut t) = affine_start(model, &y, &weights)?;
     let size = model_size(model, &weights);
+    (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
 
-    let rounds =
-        1 + usize::from(opts.robust) * 2 + usize::from(opts.hpr_aware && visibility.is_some()) * 2;
-    let mut hidden_mask: Option<Vec<bool>> = None;
-    for round in 0..rounds {
-        (r, s, t) = levenberg_marquardt(model, &y, &weights, r, s, t, opts.iterations);
-        if round + 1 == rounds {
-            break;
-        }
-        // Reweight: visibility first, then robustness on what is left.
-        if let (true, Some(map)) = (opts.hpr_aware, visibility) {
-            hidden_mask = Some(map.lookup(&r).iter().map(|v| !v).collect());
-        }
-        for i in 0..n {
-            weights[i] = base[i];
-            if hidden_mask.as_ref().is_some_and(|h| h[i]) {
-                weights[i] = 0.0;
+    // HPR: drop the points hidden at the estimate, refit until the visible set settles.
+    let mut hidden: Option<&[bool]> = None;
+    if let (true, Some(map)) = (opts.hpr_aware, visibility) {
+        for _ in 0..2 {
+            let now = map.lookup(&r);
+            if hidden == Some(now) {
+                break;
             }
+            hidden = Some(now);
+            for i in 0..n {
+                weights[i] = if now[i] { base[i] } else { 0.0 };
+            }
+            if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
+                weights.clone_from(&base);
+                break;
+            }
+            (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
         }
-        if opts.robust {
-            tukey_reweight(model, &y, &mut weights, &r, s, &t, 0.01 * s * size);
-        }
-        if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
-            // Too few points left: fall back to every present point.
-            weights.clone_from(&base);
+    }
+    // Robustness: Tukey reweighting, only when some residual stands out.
+    if opts.robust {
+        let before = weights.clone();
+        for _ in 0..2 {
+            weights.clone_from(&before);
+            if !tukey_reweight(model, &y, &mut weights, &r, s, &t, 0.01 * s * size) {
+                break;
+            }
+            if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
+                weights.clone_from(&before);
+                break;
+            }
+            (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
         }
     }
     let rms_px = weighted_rms(model, &y, &weights, &r, s, &t);
@@ -184,32 +193,102 @@ fn affine_start(
         .try_inverse()
         .ok_or_else(|| Error::Degenerate("the model points in use are coplanar".into()))?;
     let a = yx * inv;
-    let svd = a.svd(true, true);
-    let (u, vt) = match (svd.u, svd.v_t) {
-        (Some(u), Some(vt)) => (u, vt),
-        _ => return Err(Error::Numerical("SVD of the affine camera failed".into())),
-    };
-    let (s1, s2) = (svd.singular_values[0], svd.singular_values[1]);
-    if spread <= 1e-18 || s2 <= 1e-9 * s1.max(1e-300) {
+    // Polar decomposition of the 2x3 camera: A = S^½ [r1; r2] with S = A Aᵀ (2x2), in closed form.
+    let m = a * a.transpose();
+    let (tr, det) = (m.trace(), m.determinant());
+    if spread <= 1e-18 || det.is_nan() || det <= 1e-18 * tr * tr {
         return Err(Error::Degenerate(
             "the landmarks are all at one place or on one line".into(),
         ));
     }
-    let rows = u * vt;
-    let r1: Vector3<f64> = rows.row(0).transpose();
-    let r2: Vector3<f64> = rows.row(1).transpose();
+    let sq = det.sqrt();
+    let root_sum = (tr + 2.0 * sq).sqrt(); // σ1 + σ2
+    // (S^½)⁻¹ = (S + √det I)⁻¹ · (σ1 + σ2).
+    let inv_sqrt = (m + nalgebra::Matrix2::identity() * sq)
+        .try_inverse()
+        .ok_or_else(|| Error::Numerical("polar decomposition failed".into()))?
+        * root_sum;
+    let rows = inv_sqrt * a;
+    let r1: Vector3<f64> = rows.row(0).transpose().normalize();
+    let r2: Vector3<f64> =
+        (rows.row(1).transpose() - r1 * r1.dot(&rows.row(1).transpose())).normalize();
     let rot = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
         r1.transpose(),
         r2.transpose(),
         r1.cross(&r2).transpose(),
     ]));
-    let s = 0.5 * (s1 + s2);
+    let s = 0.5 * root_sum;
     let t = cy - s * (rot * cx).xy();
     Ok((rot, s, t))
 }
 
+/// Cost, `JᵀWJ` and `JᵀWr` at `(r, s, t)` in one pass over the points.
+///
+/// With `q = R X`, `a = s q_z`, `b = s q_y`, `c = s q_x`, the two Jacobian rows of a point are
+/// `jx = (0, a, -b, q_x, 1, 0)` and `jy = (-a, 0, c, q_y, 0, 1)` (rotation `ω`, then `s`, `t`);
+/// their sparsity leaves 14 distinct sums, accumulated directly.
+fn normal_equations(
+    model: &[Vector3<f64>],
+    y: &[Vector2<f64>],
+    w: &[f64],
+    r: &Rotation3<f64>,
+    s: f64,
+    t: &Vector2<f64>,
+) -> (f64, Matrix6<f64>, Vector6<f64>) {
+    let m = r.matrix();
+    let (mut cost, mut aa, mut ac, mut aqy, mut sa, mut ab, mut aqx, mut bbcc) =
+        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let (mut cross, mut sb, mut sc, mut qq, mut sqx, mut sqy, mut sw) =
+        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut g = [0.0; 6];
+    for ((x, p), &wi) in model.iter().zip(y).zip(w) {
+        if wi == 0.0 {
+            continue;
+        }
+        let qx = m[(0, 0)] * x.x + m[(0, 1)] * x.y + m[(0, 2)] * x.z;
+        let qy = m[(1, 0)] * x.x + m[(1, 1)] * x.y + m[(1, 2)] * x.z;
+        let qz = m[(2, 0)] * x.x + m[(2, 1)] * x.y + m[(2, 2)] * x.z;
+        let (rx, ry) = (s * qx + t.x - p.x, s * qy + t.y - p.y);
+        let (a, b, c) = (s * qz, s * qy, s * qx);
+        cost += wi * (rx * rx + ry * ry);
+        aa += wi * a * a;
+        ac += wi * a * c;
+        aqy += wi * a * qy;
+        sa += wi * a;
+        ab += wi * a * b;
+        aqx += wi * a * qx;
+        bbcc += wi * (b * b + c * c);
+        cross += wi * (c * qy - b * qx);
+        sb += wi * b;
+        sc += wi * c;
+        qq += wi * (qx * qx + qy * qy);
+        sqx += wi * qx;
+        sqy += wi * qy;
+        sw += wi;
+        g[0] -= wi * a * ry;
+        g[1] += wi * a * rx;
+        g[2] += wi * (c * ry - b * rx);
+        g[3] += wi * (qx * rx + qy * ry);
+        g[4] += wi * rx;
+        g[5] += wi * ry;
+    }
+    #[rustfmt::skip]
+    let jtj = Matrix6::new(
+        aa,   0.0,  -ac,   -aqy,  0.0, -sa,
+        0.0,  aa,   -ab,   aqx,   sa,  0.0,
+        -ac,  -ab,  bbcc,  cross, -sb, sc,
+        -aqy, aqx,  cross, qq,    sqx, sqy,
+        0.0,  sa,   -sb,   sqx,   sw,  0.0,
+        -sa,  0.0,  sc,    sqy,   0.0, sw,
+    );
+    (cost, jtj, Vector6::from(g))
+}
+
+/// Gauss-Newton on `(ω, s, t)` with `R ← exp([ω]×) R`, damped (Levenberg-Marquardt) only after a
+/// step that raised the cost, which is then undone; stops when the step is negligible. Each
+/// iteration is one pass over the points.
 #[allow(clippy::too_many_arguments)]
-fn levenberg_marquardt(
+fn gauss_newton(
     model: &[Vector3<f64>],
     y: &[Vector2<f64>],
     w: &[f64],
@@ -218,50 +297,41 @@ fn levenberg_marquardt(
     mut t: Vector2<f64>,
     iterations: usize,
 ) -> (Rotation3<f64>, f64, Vector2<f64>) {
-    let mut lambda = 1e-3;
-    let mut cost = weighted_cost(model, y, w, &r, s, &t);
-    for _ in 0..iterations {
-        let mut jtj = Matrix6::zeros();
-        let mut jtr = Vector6::zeros();
-        for ((x, p), &wi) in model.iter().zip(y).zip(w) {
-            if wi == 0.0 {
-                continue;
-            }
-            let q = r * x;
-            let res = s * q.xy() + t - p;
-            // d(res)/d(ω) = s P (-[q]×): rows x and y of -[q]×.
-            let jx = Vector6::new(0.0, s * q.z, -s * q.y, q.x, 1.0, 0.0);
-            let jy = Vector6::new(-s * q.z, 0.0, s * q.x, q.y, 0.0, 1.0);
-            jtj += wi * (jx * jx.transpose() + jy * jy.transpose());
-            jtr += wi * (jx * res.x + jy * res.y);
+    let mut lambda = 0.0;
+    let mut best = (r, s, t);
+    let (mut best_cost, mut jtj, mut jtr) = normal_equations(model, y, w, &r, s, &t);
+    for _ in 0..3 * iterations {
+        let mut a = jtj;
+        for k in 0..6 {
+            a[(k, k)] *= 1.0 + lambda;
         }
-        let mut improved = false;
-        for _ in 0..6 {
-            let mut a = jtj;
-            for k in 0..6 {
-                a[(k, k)] *= 1.0 + lambda;
-            }
-            let Some(delta) = a.cholesky().map(|c| c.solve(&(-jtr))) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let rn = Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])) * r;
-            let sn = s + delta[3];
-            let tn = t + Vector2::new(delta[4], delta[5]);
-            let cn = weighted_cost(model, y, w, &rn, sn, &tn);
-            if sn > 0.0 && cn <= cost {
-                let small = cost - cn <= 1e-14 * cost.max(1e-300);
-                (r, s, t, cost) = (rn, sn, tn, cn);
-                lambda = (lambda * 0.3).max(1e-9);
-                improved = !small;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
+        let Some(delta) = a.cholesky().map(|c| c.solve(&(-jtr))) else {
+            lambda = (lambda * 10.0).max(1e-6);
+            continue;
+        };
+        let (br, bs, bt) = best;
+        r = Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])) * br;
+        s = bs + delta[3];
+        t = bt + Vector2::new(delta[4], delta[5]);
+        if delta.fixed_rows::<3>(0).norm() < 1e-7
+            && delta[3].abs() < 1e-7 * bs
+            && delta[4].hypot(delta[5]) < 1e-5 * bs
+        {
             break;
         }
+        if s <= 0.0 {
+            lambda = (lambda * 10.0).max(1e-6);
+            continue;
+        }
+        let (cost, j, g) = normal_equations(model, y, w, &r, s, &t);
+        if cost <= best_cost {
+            (best, best_cost, jtj, jtr) = ((r, s, t), cost, j, g);
+            lambda *= 0.1;
+        } else {
+            lambda = (lambda * 10.0).max(1e-6);
+        }
     }
+    let (r, s, t) = best;
     (r.renormalize_copy(), s, t)
 }
 
@@ -308,7 +378,8 @@ fn weighted_rms(
     (weighted_cost(model, y, w, r, s, t) / sw).sqrt()
 }
 
-/// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored).
+/// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored). Leaves the
+/// weights alone and returns false when no residual exceeds 2.5 σ (nothing stands out).
 fn tukey_reweight(
     model: &[Vector3<f64>],
     y: &[Vector2<f64>],
@@ -317,28 +388,36 @@ fn tukey_reweight(
     s: f64,
     t: &Vector2<f64>,
     floor: f64,
-) {
-    let mut res: Vec<f64> = model
+) -> bool {
+    let res: Vec<f64> = model
         .iter()
         .zip(y)
+        .map(|(x, p)| (s * (r * x).xy() + t - p).norm())
+        .collect();
+    let mut active: Vec<f64> = res
+        .iter()
         .zip(w.iter())
         .filter(|(_, w)| **w > 0.0)
-        .map(|((x, p), _)| (s * (r * x).xy() + t - p).norm())
+        .map(|(e, _)| *e)
         .collect();
-    if res.len() < 4 {
-        return;
+    if active.len() < 4 {
+        return false;
     }
-    res.sort_by(f64::total_cmp);
-    let sigma = (1.4826 * res[res.len() / 2]).max(floor);
+    let mid = active.len() / 2;
+    let median = *active.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let sigma = (1.4826 * median).max(floor);
+    if active.iter().all(|&e| e <= 2.5 * sigma) {
+        return false;
+    }
     let c = 4.685 * sigma;
-    for ((x, p), wi) in model.iter().zip(y).zip(w.iter_mut()) {
+    for (wi, e) in w.iter_mut().zip(&res) {
         if *wi > 0.0 {
-            let e = (s * (r * x).xy() + t - p).norm() / c;
-            *wi *= if e >= 1.0 { 0.0 } else { (1.0 - e * e).powi(2) };
+            let u = e / c;
+            *wi *= if u >= 1.0 { 0.0 } else { (1.0 - u * u).powi(2) };
         }
     }
+    true
 }
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,76 @@
+//! Estimator speed on one core: one face of 68 points (the default model's mean projected at a
+//! known pose with 1% landmark noise), each method through the public `estimate` entry point,
+//! and the rigid fit alone.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use facepose::estimate::{FitOptions, Method, estimate, fit_rigid};
+use facepose::geometry::{EulerAngles, WeakPerspective};
+use facepose::model::default_model;
+use facepose::shape::{Shape2, ibug68};
+use nalgebra::Vector2;
+use rand::{SeedableRng, rngs::StdRng};
+use rand_distr::{Distribution, Normal};
+use std::hint::black_box;
+
+fn face() -> Shape2 {
+    let (_, model) = default_model().unwrap();
+    let cam = WeakPerspective::new(
+        EulerAngles::new(25.0, -10.0, 5.0).unwrap().to_rotation(),
+        1.8,
+        Vector2::new(225.0, -225.0),
+    )
+    .unwrap();
+    let mut rng = StdRng::seed_from_u64(1);
+    let noise = Normal::new(0.0, 1.2).unwrap();
+    Shape2::full(
+        model
+            .mean
+            .iter()
+            .map(|x| cam.project(x) + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)))
+            .collect(),
+    )
+    .unwrap()
+}
+
+fn estimators(c: &mut Criterion) {
+    let (_, model) = default_model().unwrap();
+    let lm = face();
+    let five = lm.to_five(&ibug68()).unwrap();
+    c.bench_function("fit_rigid/68 points", |b| {
+        b.iter(|| {
+            fit_rigid(
+                black_box(&model.mean),
+                black_box(&lm),
+                &[],
+                None,
+                FitOptions {
+                    hpr_aware: false,
+                    ..FitOptions::default()
+                },
+            )
+            .unwrap()
+        })
+    });
+    for m in [
+        Method::Fit,
+        Method::FitShape,
+        Method::Regression,
+        Method::Geometry,
+        Method::Auto,
+    ] {
+        // Warm the regression's per-pattern cache, as a service would be after its first query.
+        let _ = estimate(&model, "ibug68", &lm, m);
+        c.bench_function(&format!("estimate/{m}/68 points"), |b| {
+            b.iter(|| estimate(&model, "ibug68", black_box(&lm), m).unwrap())
+        });
+    }
+    for m in [Method::Fit, Method::Regression, Method::Geometry] {
+        let _ = estimate(&model, "five", &five, m);
+        c.bench_function(&format!("estimate/{m}/five"), |b| {
+            b.iter(|| estimate(&model, "five", black_box(&five), m).unwrap())
+        });
+    }
+}
+
+criterion_group!(benches, estimators);
+criterion_main!(benches);
