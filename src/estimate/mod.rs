@@ -7,10 +7,12 @@
 pub mod fit;
 pub mod geometric;
 pub mod morph_fit;
+pub mod perspective;
 pub mod pipeline;
 pub mod regression;
 pub mod visibility_map;
 
 pub use fit::{FitOptions, RigidFit, fit_rigid};
-pub use pipeline::{Estimate, Method, estimate};
+pub use perspective::Intrinsics;
+pub use pipeline::{Estimate, EstimateOptions, Method, estimate, estimate_with};
 pub use visibility_map::VisibilityMap;

@@ -10,16 +10,18 @@ use serde::{Deserialize, Serialize};
 use super::fit::{FitOptions, fit_rigid};
 use super::geometric::estimate_geometric;
 use super::morph_fit::{MorphOptions, fit_morphable};
+use super::perspective::{Intrinsics, refine_perspective};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
 use crate::model::{PoseModel, SubsetMap};
 use crate::shape::Shape2;
 
 /// The estimators.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
     /// The most accurate method for the input (see [`Method::resolve`]).
+    #[default]
     Auto,
     /// Rigid weak-perspective fit of the mean shape.
     Fit,
@@ -96,6 +98,17 @@ pub struct Estimate {
     pub residual: f64,
     /// The method that produced it (never `Auto`).
     pub method: Method,
+    /// With camera intrinsics: the model origin in the camera frame, mm (x right, y up, z
+    /// towards the viewer; the face is at negative z).
+    pub translation: Option<Vector3<f64>>,
+}
+
+/// How to estimate.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct EstimateOptions {
+    pub method: Method,
+    /// Pinhole intrinsics: the fit methods then refine the pose under full perspective.
+    pub camera: Option<Intrinsics>,
 }
 
 /// Estimates the pose of `landmarks` (image pixels) given in `scheme` with `method`.
@@ -105,6 +118,30 @@ pub fn estimate(
     landmarks: &Shape2,
     method: Method,
 ) -> Result<Estimate> {
+    estimate_with(
+        model,
+        scheme,
+        landmarks,
+        &EstimateOptions {
+            method,
+            camera: None,
+        },
+    )
+}
+
+/// [`estimate`] with options: with camera intrinsics, the fit methods (and `auto`) refine the
+/// weak-perspective pose under full perspective and report the face's position; the paper's
+/// methods are weak-perspective by construction and refuse a camera.
+pub fn estimate_with(
+    model: &PoseModel,
+    scheme: &str,
+    landmarks: &Shape2,
+    opts: &EstimateOptions,
+) -> Result<Estimate> {
+    if let Some(k) = &opts.camera {
+        k.validate()?;
+    }
+    let method = opts.method;
     let subset = model.subset(scheme)?;
     if landmarks.len() != subset.scheme.len() {
         return Err(Error::PointCount {
@@ -117,9 +154,19 @@ pub fn estimate(
     let method = method.resolve(model, scheme, present);
     let map = &subset.map;
     let contour = &subset.scheme.contour;
+    if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
+        return Err(Error::param(
+            "camera",
+            format!(
+                "method {method} is weak-perspective only; use fit, fit-shape or auto with camera intrinsics"
+            ),
+        ));
+    }
+    // The fit methods keep their shape and camera for the perspective refinement.
+    let mut fitted: Option<(Vec<Vector3<f64>>, super::fit::RigidFit)> = None;
     let rotation = match method {
         Method::Fit => {
-            fit_rigid(
+            let f = fit_rigid(
                 &subset.mean,
                 landmarks,
                 contour,
@@ -128,8 +175,10 @@ pub fn estimate(
                     hpr_aware: false,
                     ..FitOptions::default()
                 },
-            )?
-            .rotation
+            )?;
+            let r = f.rotation;
+            fitted = Some((subset.mean.clone(), f));
+            r
         }
         Method::FitShape => {
             let morph = model.morph.as_ref().ok_or_else(|| {
@@ -138,15 +187,27 @@ pub fn estimate(
             let full = model.expand(subset, landmarks).ok_or_else(|| {
                 Error::param("method", format!("fit-shape does not take scheme {scheme}"))
             })?;
-            fit_morphable(
+            let f = fit_morphable(
                 morph,
                 &full,
                 &model.scheme.contour,
                 None,
                 MorphOptions::default(),
-            )?
-            .camera
-            .rotation
+            )?;
+            let r = f.camera.rotation;
+            let shape = subset.map.map_points(&model.scheme, &f.shape);
+            let weights = match &subset.map {
+                SubsetMap::Indices(idx) => idx.iter().map(|&i| f.camera.weights[i]).collect(),
+                SubsetMap::Anchors => vec![1.0; subset.scheme.len()],
+            };
+            fitted = Some((
+                shape,
+                super::fit::RigidFit {
+                    weights,
+                    ..f.camera
+                },
+            ));
+            r
         }
         Method::Regression => {
             let hidden = |a: &EulerAngles| {
@@ -170,6 +231,19 @@ pub fn estimate(
         }
         Method::Auto => unreachable!("resolved above"),
     };
+    let (rotation, translation) = match (&opts.camera, fitted) {
+        (Some(k), Some((shape, f))) => {
+            let p = refine_perspective(
+                &shape,
+                landmarks,
+                &f.weights,
+                k,
+                (f.rotation, f.scale, f.translation),
+            )?;
+            (p.rotation, Some(p.translation))
+        }
+        _ => (rotation, None),
+    };
     let visible = map.map_visibility(&model.scheme, model.visibility.lookup(&rotation));
     let residual = residual(
         &subset.mean,
@@ -184,6 +258,7 @@ pub fn estimate(
         visible,
         residual,
         method,
+        translation,
     })
 }
 
