@@ -21,7 +21,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::PaperHpr;
 use crate::shape::{Scheme, Shape2};
 
-pub use train::{RegressionParams, TrainOptions, train, train_from_population};
+pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_population};
 
 /// How a sub-scheme's points come from the model scheme's points.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]

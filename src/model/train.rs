@@ -167,13 +167,28 @@ pub fn train(
     })
 }
 
+/// Where the shape fit's basis comes from.
+#[derive(Debug, Clone)]
+pub enum BasisSource<'a> {
+    /// No basis: the model has no `fit-shape`.
+    None,
+    /// Up to this many principal components of the training shapes.
+    Pca(usize),
+    /// A published morphable model over the same points, with its expression prior widened by
+    /// `expression_spread` (see [`super::basis::morphable_basis`]).
+    Morphable {
+        model: &'a super::basis::MorphableModel,
+        expression_spread: f64,
+    },
+}
+
 /// Trains from a population of 3D shapes (mm, model frame, all points): the mean by generalized
-/// Procrustes analysis, frontalized, and a shape basis of up to `components` principal
-/// components (none when 0) for the shape fit. Every shape also serves as validation for `ε`.
+/// Procrustes analysis, frontalized, and the shape fit's basis from `basis`. Every shape also
+/// serves as validation for `ε`.
 pub fn train_from_population(
     scheme: &Scheme,
     shapes: &[Vec<Vector3<f64>>],
-    components: usize,
+    basis: BasisSource<'_>,
     opts: &TrainOptions,
 ) -> Result<PoseModel> {
     if shapes.len() < 2 {
@@ -184,10 +199,17 @@ pub fn train_from_population(
         crate::geometry::procrustes::GpaOptions::default(),
     )?;
     let mean = Shape3::full(gpa)?.frontalized(scheme)?.points().to_vec();
-    let basis = if components > 0 {
-        Some(super::basis::pca_basis(shapes, &mean, components, 0.999)?)
-    } else {
-        None
+    let basis = match basis {
+        BasisSource::None | BasisSource::Pca(0) => None,
+        BasisSource::Pca(k) => Some(super::basis::pca_basis(shapes, &mean, k, 0.999)?),
+        BasisSource::Morphable {
+            model,
+            expression_spread,
+        } => Some(super::basis::morphable_basis(
+            model,
+            &mean,
+            expression_spread,
+        )?),
     };
     train(scheme, &mean, shapes, basis, opts)
 }
