@@ -47,6 +47,23 @@ impl SubsetMap {
         }
     }
 
+    /// Marks in `out` the subset's points hidden under the model's visibility `vis` (an anchor is
+    /// hidden when all its points are); allocation-free.
+    pub fn hidden_into(&self, scheme: &Scheme, vis: &[bool], out: &mut [bool]) {
+        match self {
+            SubsetMap::Indices(idx) => {
+                for (o, &i) in out.iter_mut().zip(idx) {
+                    *o = !vis[i];
+                }
+            }
+            SubsetMap::Anchors => {
+                for (o, a) in out.iter_mut().zip(scheme.anchors.as_array()) {
+                    *o = !a.iter().any(|&i| vis[i]);
+                }
+            }
+        }
+    }
+
     /// The subset's visibility from the model's: an anchor is visible if any of its points is.
     pub fn map_visibility(&self, scheme: &Scheme, vis: &[bool]) -> Vec<bool> {
         match self {

@@ -347,15 +347,13 @@ fn choose_epsilon(
     val: &[(Shape2, EulerAngles)],
     candidates: &[f64],
 ) -> Result<RegressionModel> {
-    let none = |_: &EulerAngles| Vec::new();
+    let none = |_: f64, _: f64, _: &mut [bool]| {};
     let mut best: Option<(f64, f64)> = None;
     for &eps in candidates {
         let mut err = 0.0;
         for (shape, truth) in val {
             err += match model.estimate_with(shape, &none, eps) {
-                Ok(e) => {
-                    crate::geometry::geodesic_deg(&e.angles.to_rotation(), &truth.to_rotation())
-                }
+                Ok(e) => crate::geometry::geodesic_deg(&e.rotation, &truth.to_rotation()),
                 Err(_) => 90.0,
             };
         }
