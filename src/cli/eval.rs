@@ -191,7 +191,7 @@ fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), 
          are anchor means of all 68 projections). \"Training\" = the mean shape's own {poses} views; \"testing\" = each test shape at a seeded \
          1/{stride} of the poses, i.e. {views} views per method (about {per_pose:.0} shapes per pose). \
          Errors in degrees; MSE (the paper's measure) in degrees²; geodesic = mean angle of R_estimateᵀ R_true, which also counts roll \
-         (true roll 0). Failed estimates are counted and left out of the means. Training {train_time:.1} s, evaluation {run_time:.1} s (one core).\n\n\
+         (true roll 0). Failed estimates are counted and left out of the means (the geometric method needs all five points, so it fails where HPR hides a mouth corner, near the corners of the grid). Training {train_time:.1} s, evaluation {run_time:.1} s (one core).\n\n\
          {table}\n\
          ### Robustness\n\n\
          {samples} seeded draws of (test shape, pose) from the same grid, the same for every method and condition; MAE = mean of the yaw and \
