@@ -38,7 +38,9 @@ use crate::estimate::{Method, estimate};
 use crate::geometry::procrustes::centre3;
 use crate::geometry::{EulerAngles, geodesic_deg};
 use crate::hpr::PaperHpr;
-use crate::model::{PoseModel, RegressionParams, Subset, TrainOptions, train_from_population};
+use crate::model::{
+    BasisSource, PoseModel, RegressionParams, Subset, TrainOptions, train_from_population,
+};
 use crate::shape::{Scheme, Shape2};
 use crate::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
 
@@ -148,7 +150,7 @@ pub fn train_paper_model(
         subsets: vec!["inner51".into(), "five".into()],
         seed,
     };
-    train_from_population(scheme, shapes, components, &opts)
+    train_from_population(scheme, shapes, BasisSource::Pca(components), &opts)
 }
 
 /// Which stage a row measures.

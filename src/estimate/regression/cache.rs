@@ -42,11 +42,14 @@ pub(super) struct Key {
     pub pattern: Pattern,
 }
 
+/// The entries and their insertion order.
+type Entries<T> = (HashMap<Key, Arc<T>>, VecDeque<Key>);
+
 /// A bounded map from [`Key`] to shared values.
 #[derive(Debug)]
 pub(super) struct BoundedCache<T> {
     limit: usize,
-    inner: RwLock<(HashMap<Key, Arc<T>>, VecDeque<Key>)>,
+    inner: RwLock<Entries<T>>,
 }
 
 impl<T> BoundedCache<T> {

@@ -423,7 +423,7 @@ impl RegressionModel {
         let norm2 = sq - k as f64 * (cx * cx + cy * cy);
         // Relative to the points' spread from the origin, so that a shape far from the image
         // origin is not called degenerate by rounding.
-        if !(norm2 > 1e-18 * sq.max(1e-300)) {
+        if norm2.is_nan() || norm2 <= 1e-18 * sq.max(1e-300) {
             return None;
         }
         let inv = 1.0 / norm2.sqrt();
