@@ -217,10 +217,7 @@ pub fn train_from_population(
 /// The sub-scheme called `name` of `scheme` and how its points map.
 pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     if name == scheme.name {
-        return Ok((
-            scheme.clone(),
-            SubsetMap::Indices((0..scheme.len()).collect()),
-        ));
+        return Ok((scheme.clone(), SubsetMap::Own));
     }
     match (scheme.name.as_str(), name) {
         (_, "five") => Ok((five(), SubsetMap::Anchors)),
