@@ -13,7 +13,7 @@ use super::morph_fit::{MorphOptions, fit_morphable};
 use super::perspective::{Intrinsics, refine_perspective};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
-use crate::model::{PoseModel, SubsetMap};
+use crate::model::{PoseModel, Subset, SubsetMap};
 use crate::shape::Shape2;
 
 /// The estimators.
@@ -37,13 +37,16 @@ impl Method {
     /// Every method name, for messages.
     pub const NAMES: [&'static str; 5] = ["auto", "fit", "fit-shape", "regression", "geometry"];
 
-    /// The method `auto` stands for, given the model, the input scheme and how many points are
-    /// present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most accurate with
-    /// many points, the rigid fit with five.
-    pub fn resolve(self, model: &PoseModel, scheme: &str, present: usize) -> Method {
+    /// The method `auto` stands for, given the model, the subset the input is in and how many
+    /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
+    /// accurate on 68 and 51 points, the rigid fit on five (anchor means, which the shape fit
+    /// does not take).
+    pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
         match self {
             Method::Auto
-                if model.morph.is_some() && scheme == model.scheme.name && present >= 20 =>
+                if model.morph.is_some()
+                    && subset.map != SubsetMap::Anchors
+                    && present >= MIN_SHAPE_FIT_POINTS =>
             {
                 Method::FitShape
             }
@@ -85,6 +88,10 @@ impl FromStr for Method {
         }
     }
 }
+
+/// Fewest present points for `auto` to choose the shape fit: below, the prior decides most of
+/// the shape and the rigid fit is as good.
+pub const MIN_SHAPE_FIT_POINTS: usize = 12;
 
 /// A pose estimate.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,7 +158,7 @@ pub fn estimate_with(
         });
     }
     let present = landmarks.n_present();
-    let method = method.resolve(model, scheme, present);
+    let method = method.resolve(model, subset, present);
     let map = &subset.map;
     let contour = &subset.scheme.contour;
     if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
