@@ -38,10 +38,7 @@ fn estimators(c: &mut Criterion) {
     let (_, model) = default_model().unwrap();
     let lm = face();
     let five = lm.to_five(&ibug68()).unwrap();
-    let rigid = FitOptions {
-        hpr_aware: false,
-        ..FitOptions::default()
-    };
+    let rigid = FitOptions::default();
     c.bench_function("estimator/fit (rigid)/68 points", |b| {
         b.iter(|| fit_rigid(black_box(&model.mean), black_box(&lm), &[], None, rigid).unwrap())
     });

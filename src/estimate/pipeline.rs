@@ -7,7 +7,7 @@ use std::str::FromStr;
 use nalgebra::{Rotation3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::fit::{FitOptions, fit_rigid};
+use super::fit::{FitOptions, Hidden, fit_rigid};
 use super::geometric::estimate_geometric;
 use super::morph_fit::{MorphOptions, fit_morphable};
 use super::perspective::{Intrinsics, refine_perspective};
@@ -110,12 +110,49 @@ pub struct Estimate {
     pub translation: Option<Vector3<f64>>,
 }
 
+/// How the landmarks were made, which decides what hidden points mean.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LandmarkStyle {
+    /// Every landmark is the projection of its 3D point, seen or not (3D-style: 3DMM fits,
+    /// AFLW2000-3D, 3DDFA, FAN-3D). Hidden points still pull.
+    #[default]
+    Projected,
+    /// 2D-style (300-W, dlib, FAN-2D): contour points (the jaw) hidden at the pose sit on the
+    /// visible outline, so the fit methods leave them out (HPR at the estimate).
+    Contour,
+}
+
+impl LandmarkStyle {
+    /// Every style name, for messages.
+    pub const NAMES: [&'static str; 2] = ["projected", "contour"];
+}
+
+impl FromStr for LandmarkStyle {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "projected" => Ok(LandmarkStyle::Projected),
+            "contour" => Ok(LandmarkStyle::Contour),
+            _ => Err(Error::param(
+                "landmark_style",
+                format!(
+                    "unknown landmark style {s:?} (known: {})",
+                    LandmarkStyle::NAMES.join(", ")
+                ),
+            )),
+        }
+    }
+}
+
 /// How to estimate.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EstimateOptions {
     pub method: Method,
     /// Pinhole intrinsics: the fit methods then refine the pose under full perspective.
     pub camera: Option<Intrinsics>,
+    /// How the landmarks were made (the fit methods' use of hidden contour points).
+    pub style: LandmarkStyle,
 }
 
 /// Estimates the pose of `landmarks` (image pixels) given in `scheme` with `method`.
@@ -131,7 +168,7 @@ pub fn estimate(
         landmarks,
         &EstimateOptions {
             method,
-            camera: None,
+            ..EstimateOptions::default()
         },
     )
 }
@@ -169,20 +206,21 @@ pub fn estimate_with(
             ),
         ));
     }
+    let fit_options = FitOptions {
+        hidden: match opts.style {
+            LandmarkStyle::Projected => Hidden::Keep,
+            LandmarkStyle::Contour => Hidden::DropContour,
+        },
+        ..FitOptions::default()
+    };
     // The fit methods keep their shape and camera for the perspective refinement.
     let mut fitted: Option<(Vec<Vector3<f64>>, super::fit::RigidFit)> = None;
     let rotation = match method {
         Method::Fit => {
-            let f = fit_rigid(
-                &subset.mean,
-                landmarks,
-                contour,
-                None,
-                FitOptions {
-                    hpr_aware: false,
-                    ..FitOptions::default()
-                },
-            )?;
+            // The visibility map is over the model's own points; subsets without contour
+            // points have nothing to drop.
+            let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
+            let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
             let r = f.rotation;
             fitted = Some((subset.mean.clone(), f));
             r
@@ -198,8 +236,11 @@ pub fn estimate_with(
                 morph,
                 &full,
                 &model.scheme.contour,
-                None,
-                MorphOptions::default(),
+                Some(&model.visibility),
+                MorphOptions {
+                    rigid: fit_options,
+                    ..MorphOptions::default()
+                },
             )?;
             let r = f.camera.rotation;
             let shape = subset.map.map_points(&model.scheme, &f.shape);
