@@ -452,3 +452,92 @@ mod tests {
         assert_eq!(viridis(f64::NAN), viridis(0.0));
     }
 }
+
+/// One panel of landmark sets drawn over each other in image coordinates (x right, y down):
+/// each set as its points, its first `outline` points joined (the jaw of ibug68).
+#[derive(Debug, Clone)]
+pub struct LandmarkPanel {
+    pub title: String,
+    pub outline: usize,
+    /// (name, points) per set.
+    pub sets: Vec<(String, Vec<[f64; 2]>)>,
+}
+
+/// Landmark panels side by side, equal scale on both axes, image y downwards.
+pub fn landmarks_png(title: &str, panels: &[LandmarkPanel]) -> Result<Vec<u8>, PlotError> {
+    let side = 380u32;
+    let mut names: Vec<&str> = Vec::new();
+    for p in panels {
+        for (n, _) in &p.sets {
+            if !names.contains(&n.as_str()) {
+                names.push(n);
+            }
+        }
+    }
+    let w = side * panels.len().max(1) as u32;
+    let per_row = ((w - 40) / LEGEND_ENTRY_WIDTH).max(1) as usize;
+    let legend_h = 16 + 24 * names.len().div_ceil(per_row) as u32;
+    render(w, side + 40 + legend_h, |root| {
+        let body = root
+            .titled(title, ("sans-serif", 22).into_font())
+            .map_err(err)?;
+        let (body, legend) = body.split_vertically(side);
+        draw_legend(&legend, &names, per_row)?;
+        let cells = body.split_evenly((1, panels.len().max(1)));
+        for (panel, area) in panels.iter().zip(cells.iter()) {
+            let all = panel.sets.iter().flat_map(|(_, p)| p.iter());
+            let (mut x0, mut x1, mut y0, mut y1) = (
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+            );
+            for p in all {
+                x0 = x0.min(p[0]);
+                x1 = x1.max(p[0]);
+                y0 = y0.min(p[1]);
+                y1 = y1.max(p[1]);
+            }
+            if !x0.is_finite() || !y0.is_finite() {
+                continue;
+            }
+            // A square window around the points, so both axes share one scale.
+            let half = 0.55 * (x1 - x0).max(y1 - y0).max(1.0);
+            let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+            let mut chart = ChartBuilder::on(area)
+                .caption(&panel.title, ("sans-serif", 15).into_font())
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(40)
+                .build_cartesian_2d((cx - half)..(cx + half), (cy + half)..(cy - half))
+                .map_err(err)?;
+            chart
+                .configure_mesh()
+                .label_style(("sans-serif", 12))
+                .x_label_formatter(&tick)
+                .y_label_formatter(&tick)
+                .light_line_style(RGBColor(240, 240, 240))
+                .draw()
+                .map_err(err)?;
+            for (name, pts) in &panel.sets {
+                let i = names.iter().position(|n| n == name).unwrap_or(0);
+                let color = PALETTE[i % PALETTE.len()];
+                let line: Vec<(f64, f64)> = pts
+                    .iter()
+                    .take(panel.outline)
+                    .map(|p| (p[0], p[1]))
+                    .collect();
+                chart
+                    .draw_series(LineSeries::new(line, color.stroke_width(2)))
+                    .map_err(err)?;
+                let poly = marker_polygon(i);
+                chart
+                    .draw_series(pts.iter().map(|p| {
+                        EmptyElement::at((p[0], p[1])) + Polygon::new(poly.clone(), color.filled())
+                    }))
+                    .map_err(err)?;
+            }
+        }
+        Ok(())
+    })
+}
