@@ -1,6 +1,7 @@
 //! One interface over every estimator: landmarks in a scheme the model serves -> rotation,
 //! angles, per-point visibility at the estimated pose, a fit residual and the method used.
 
+use std::borrow::Cow;
 use std::fmt;
 use std::str::FromStr;
 
@@ -214,7 +215,7 @@ pub fn estimate_with(
         ..FitOptions::default()
     };
     // The fit methods keep their shape and camera for the perspective refinement.
-    let mut fitted: Option<(Vec<Vector3<f64>>, super::fit::RigidFit)> = None;
+    let mut fitted: Option<(Cow<'_, [Vector3<f64>]>, super::fit::RigidFit)> = None;
     let rotation = match method {
         Method::Fit => {
             // The visibility map is over the model's own points; subsets without contour
@@ -222,7 +223,7 @@ pub fn estimate_with(
             let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
             let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
             let r = f.rotation;
-            fitted = Some((subset.mean.clone(), f));
+            fitted = Some((Cow::Borrowed(&subset.mean[..]), f));
             r
         }
         Method::FitShape => {
@@ -250,7 +251,7 @@ pub fn estimate_with(
                 SubsetMap::Anchors => vec![1.0; subset.scheme.len()],
             };
             fitted = Some((
-                shape,
+                Cow::Owned(shape),
                 super::fit::RigidFit {
                     weights,
                     ..f.camera
