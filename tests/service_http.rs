@@ -389,17 +389,17 @@ async fn bad_input_says_what_to_fix() {
         (
             json!({"landmarks": "all of them"}),
             422,
-            "landmarks: invalid type: string",
+            "landmarks: expected an array of landmarks, each [x, y] (pixels) or null, found a string",
         ),
         (
             json!({"landmarks": [[1, 2], {"x": 1}]}),
             422,
-            "landmarks[1]: invalid type: map, expected landmark 1",
+            "landmark 1 must be [x, y] numbers or null, found an object",
         ),
         (
             json!({"landmarks": [[1, 2], [3, [4]]]}),
             422,
-            "expected landmark 1 y as a number",
+            "landmark 1 y must be a number, found an array",
         ),
         (
             json!({"landmarks": [[1, 2], [3, "4"]]}),
@@ -419,7 +419,7 @@ async fn bad_input_says_what_to_fix() {
         (
             json!({"landmarks": null, "scheme": null, "method": null, "model": null, "camera": null, "id": null}),
             422,
-            "landmarks: invalid type: null",
+            "landmarks: expected an array of landmarks, each [x, y] (pixels) or null, found null",
         ),
         (
             json!({"landmarks": ok, "scheme": 68}),
@@ -482,7 +482,7 @@ async fn bad_input_says_what_to_fix() {
             "application/json",
             b"{\"landmarks\": [[1e400, 1]]}",
             422,
-            "too large for a 64-bit float",
+            "landmark 0 x = 1e400 is out of range for a 64-bit float",
         ),
         (
             "application/json",

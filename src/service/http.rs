@@ -393,9 +393,7 @@ fn json_error<T: DeserializeOwned>(bytes: &[u8], e: serde_json::Error) -> ApiErr
             if bytes.iter().all(u8::is_ascii_whitespace) {
                 empty_body()
             } else if msg.starts_with("number out of range") {
-                ApiError::invalid(format!(
-                    "a number is too large for a 64-bit float ({msg}): coordinates must be finite"
-                ))
+                ApiError::invalid(format!("a number is too large for a 64-bit float ({msg})"))
             } else if non_finite_literal_at(bytes, e.line(), e.column()) {
                 ApiError::invalid(format!(
                     "NaN and Infinity are not JSON numbers ({msg}): coordinates must be finite; \
@@ -528,6 +526,7 @@ pub async fn pose_batch(
     let inline = bytes.len() <= INLINE_BODY;
     let body = run_maybe_blocking(inline, move || {
         let req: BatchRequest = parse_json(&bytes)?;
+        drop(bytes);
         if req.faces.len() > limits.max_batch {
             return Err(ApiError::batch_too_large(req.faces.len(), limits.max_batch));
         }
@@ -857,12 +856,12 @@ mod tests {
             (
                 b"{\"landmarks\": [[1, 1e999]]}",
                 ErrorKind::InvalidArgument,
-                "too large",
+                "out of range",
             ),
             (
                 b"{\"landmarks\": 5}",
                 ErrorKind::InvalidArgument,
-                "landmarks: invalid type",
+                "landmarks: expected an array",
             ),
             (
                 b"{\"landmarks\": [], \"methd\": 1}",
