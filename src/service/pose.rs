@@ -6,7 +6,9 @@ use std::time::Instant;
 
 use super::errors::ApiError;
 use super::registry::ServedModel;
-use crate::estimate::{Estimate, EstimateOptions, Intrinsics, Method, estimate_with};
+use nalgebra::Rotation3;
+
+use crate::estimate::{EstimateOptions, Intrinsics, Method, estimate_with};
 use crate::record::{PoseRecord, shape_from_points};
 
 /// One face as a transport hands it over. Empty strings mean "not given".
@@ -18,11 +20,12 @@ pub struct FaceSpec<'a> {
     pub camera: Option<Intrinsics>,
 }
 
-/// An estimate with the scheme it was made in.
+/// An estimate as the transports send it, with the rotation for stream smoothing and the
+/// scheme it was made in.
 #[derive(Debug, Clone)]
 pub struct FacePose {
     pub record: PoseRecord,
-    pub estimate: Estimate,
+    pub rotation: Rotation3<f64>,
     pub scheme: String,
 }
 
@@ -55,7 +58,8 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
             camera: face.camera,
         },
     )?;
-    let record = PoseRecord::from(&estimate);
+    let rotation = estimate.rotation;
+    let record = PoseRecord::from(estimate);
     if !record.is_finite() {
         return Err(ApiError::invalid(
             "could not estimate a pose from these landmarks: the result is not finite; \
@@ -64,7 +68,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
     }
     Ok(FacePose {
         record,
-        estimate,
+        rotation,
         scheme: scheme.to_string(),
     })
 }

@@ -130,7 +130,7 @@ impl Session {
                             track.filter.reset();
                         }
                         track.last_seen = frames;
-                        let r = track.filter.filter(&p.estimate.rotation, dt);
+                        let r = track.filter.filter(&p.rotation, dt);
                         let a = EulerAngles::from_rotation(&r);
                         pose.yaw = a.yaw;
                         pose.pitch = a.pitch;
