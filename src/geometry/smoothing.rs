@@ -206,7 +206,10 @@ mod tests {
             }
         }
         // Squared error at least four times smaller: the RMS error at least halved.
-        assert!(smooth < raw / 4.0, "squared error smoothed {smooth} raw {raw}");
+        assert!(
+            smooth < raw / 4.0,
+            "squared error smoothed {smooth} raw {raw}"
+        );
     }
 
     #[test]
