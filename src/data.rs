@@ -66,15 +66,7 @@ pub fn load_population(path: &Path) -> Result<Population, DataError> {
     })
 }
 
-/// The 68-point morphable model (`morphable_model.json`).
-#[derive(Debug, Clone)]
-pub struct MorphableModel {
-    pub mean: Vec<Vector3<f64>>,
-    pub shape_basis: Vec<Vec<Vector3<f64>>>,
-    pub shape_coef_mean: Vec<f64>,
-    pub expression_basis: Vec<Vec<Vector3<f64>>>,
-    pub expression_coef_mean: Vec<f64>,
-}
+pub use crate::model::basis::MorphableModel;
 
 /// Reads the morphable model file.
 pub fn load_morphable_model(path: &Path) -> Result<MorphableModel, DataError> {

@@ -125,33 +125,33 @@ async fn model_folders_and_startup_errors() {
 
 #[tokio::test]
 async fn overload_and_timeouts_are_refused_not_collapsed() {
-    let server = Server::start(&["--max-concurrency", "1", "--request-timeout", "300ms"]);
+    let server = Server::start(&["--max-concurrency", "1", "--request-timeout", "800ms"]);
     let c = reqwest::Client::new();
-    // A slow batch (the shape fit, hundreds of microseconds a face) holds the only slot past the
-    // time limit.
-    let faces: Vec<Value> = (0..1000)
-        .map(|k| json!({"landmarks": face68(k as f64 * 0.01, 0.0, 0.0)}))
-        .collect();
-    let slow = {
-        let c = c.clone();
-        let url = server.url("/v1/pose:batch");
-        tokio::spawn(async move {
-            let t = Instant::now();
-            let r = c
-                .post(url)
-                .json(&json!({"faces": faces, "method": "fit-shape"}))
-                .send()
-                .await
-                .unwrap();
-            (r.status(), r.json::<Value>().await.unwrap(), t.elapsed())
-        })
-    };
+    let face = json!({"landmarks": face68(0.0, 0.0, 0.0), "method": "fit"});
+    let proto_face = proto_face(&face68(0.0, 0.0, 0.0), "", "", "");
+    let mut g = server.grpc().await;
+    // A slow client holds the only slot: its body trickles in, and the time limit covers reading
+    // it.
+    let addr = server.addr;
+    let slow = std::thread::spawn(move || {
+        use std::io::{Read, Write};
+        let t = Instant::now();
+        let mut s = std::net::TcpStream::connect(addr).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
+        s.write_all(
+            b"POST /v1/pose HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"landm",
+        )
+        .unwrap();
+        let mut text = String::new();
+        let _ = s.read_to_string(&mut text);
+        (text, t.elapsed())
+    });
     // While it runs: HTTP 429 and gRPC UNAVAILABLE, at once.
-    tokio::time::sleep(Duration::from_millis(120)).await;
+    tokio::time::sleep(Duration::from_millis(100)).await;
     let t = Instant::now();
     let r = c
         .post(server.url("/v1/pose"))
-        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0)}))
+        .json(&face)
         .send()
         .await
         .unwrap();
@@ -165,10 +165,9 @@ async fn overload_and_timeouts_are_refused_not_collapsed() {
             .unwrap()
             .contains("retry with backoff")
     );
-    let mut g = server.grpc().await;
     let err = g
         .estimate(proto::EstimateRequest {
-            face: Some(proto_face(&face68(0.0, 0.0, 0.0), "", "", "")),
+            face: Some(proto_face),
             model: String::new(),
         })
         .await
@@ -181,10 +180,12 @@ async fn overload_and_timeouts_are_refused_not_collapsed() {
     );
     // Health does not queue behind the work.
     assert_eq!(raw_get(server.addr, "/healthz").unwrap().0, 200);
-    let (status, v, took) = slow.await.unwrap();
-    assert_eq!(status, reqwest::StatusCode::SERVICE_UNAVAILABLE, "{v}");
-    assert_eq!(v["error"]["code"], "timeout");
-    assert!(v["error"]["message"].as_str().unwrap().contains("300ms"));
+    let (text, took) = slow.join().unwrap();
+    assert!(text.starts_with("HTTP/1.1 503"), "{text}");
+    assert!(
+        text.contains("\"code\":\"timeout\"") && text.contains("800ms"),
+        "{text}"
+    );
     assert!(took < Duration::from_secs(2), "{took:?}");
     // And then it serves normally.
     let r = c

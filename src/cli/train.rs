@@ -5,10 +5,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose::data::{load_multi_view, load_population};
+use facepose::data::{load_morphable_model, load_multi_view, load_population};
 use facepose::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
 use facepose::model::store::write_bundle_dir;
-use facepose::model::{RegressionParams, TrainOptions, train_from_population};
+use facepose::model::{BasisSource, RegressionParams, TrainOptions, train_from_population};
 use facepose::sfm::{SfmOptions, reconstruct};
 use facepose::shape::{Scheme, Shape2};
 use nalgebra::Vector3;
@@ -44,9 +44,18 @@ pub struct TrainArgs {
     /// Sub-schemes to serve besides the model's own.
     #[arg(long, value_delimiter = ',', default_value = "inner51,five")]
     subsets: Vec<String>,
-    /// Principal components of the shape basis for `fit-shape` (0: none).
+    /// Principal components of the shape basis for `fit-shape` (0: none); ignored with
+    /// --morphable.
     #[arg(long, default_value_t = 40)]
     components: usize,
+    /// A morphable model over the scheme's points (JSON like
+    /// ../shared/data/bfm68/morphable_model.json) whose identity and expression bases become
+    /// the shape basis for `fit-shape`, instead of principal components of the shapes.
+    #[arg(long)]
+    morphable: Option<PathBuf>,
+    /// Widen the morphable model's expression prior by this factor.
+    #[arg(long, default_value_t = 1.0, requires = "morphable")]
+    expression_spread: f64,
     /// Model name (default: the --out directory's name).
     #[arg(long)]
     name: Option<String>,
@@ -167,7 +176,27 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         subsets: a.subsets.clone(),
         ..TrainOptions::default()
     };
-    let model = train_from_population(&scheme, shapes, a.components, &opts)?;
+    let morphable = match &a.morphable {
+        Some(path) => {
+            let bytes =
+                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            sources.push(SourceFile {
+                path: path.display().to_string(),
+                sha256: sha256_hex(&bytes),
+                shapes: 0,
+            });
+            Some(load_morphable_model(path)?)
+        }
+        None => None,
+    };
+    let basis = match &morphable {
+        Some(model) => BasisSource::Morphable {
+            model,
+            expression_spread: a.expression_spread,
+        },
+        None => BasisSource::Pca(a.components),
+    };
+    let model = train_from_population(&scheme, shapes, basis, &opts)?;
     eprintln!("trained in {:.2?}", start.elapsed());
     let created = match a.created {
         Some(c) => c,
@@ -185,8 +214,16 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         // The command without --out, so that a rebuild elsewhere gives the same bytes.
         command: command_without_out(),
         notes: format!(
-            "shapes {}..{} of the sources; mean by generalized Procrustes analysis",
-            a.skip, end
+            "shapes {}..{} of the shape sets; mean by generalized Procrustes analysis; shape basis: {}",
+            a.skip,
+            end,
+            match &a.morphable {
+                Some(_) => format!(
+                    "the morphable model of the last source (expression prior x{})",
+                    a.expression_spread
+                ),
+                None => format!("up to {} principal components of the shapes", a.components),
+            }
         ),
     };
     let bundle = Bundle::from_model(&model, &opts, &name, &a.model_version, &created, provenance)?;

@@ -145,7 +145,7 @@ pub fn fit_rigid(
 }
 
 /// Root of the weighted mean squared distance of the model points to their weighted centroid.
-fn model_size(model: &[Vector3<f64>], w: &[f64]) -> f64 {
+pub(crate) fn model_size(model: &[Vector3<f64>], w: &[f64]) -> f64 {
     let sw: f64 = w.iter().sum();
     let c = model
         .iter()
@@ -380,7 +380,7 @@ fn weighted_rms(
 
 /// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored). Leaves the
 /// weights alone and returns false when no residual exceeds 2.5 σ (nothing stands out).
-fn tukey_reweight(
+pub(crate) fn tukey_reweight(
     model: &[Vector3<f64>],
     y: &[Vector2<f64>],
     w: &mut [f64],
@@ -418,6 +418,7 @@ fn tukey_reweight(
     }
     true
 }
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -210,17 +210,14 @@ pub fn estimate_with(
             r
         }
         Method::Regression => {
-            let hidden = |a: &EulerAngles| {
-                map.map_visibility(&model.scheme, model.visibility.lookup(&a.to_rotation()))
-                    .iter()
-                    .map(|v| !v)
-                    .collect()
+            let hidden = |yaw: f64, pitch: f64, out: &mut [bool]| {
+                map.hidden_into(
+                    &model.scheme,
+                    model.visibility.lookup_yaw_pitch(yaw, pitch),
+                    out,
+                )
             };
-            subset
-                .regression
-                .estimate(landmarks, &hidden)?
-                .angles
-                .to_rotation()
+            subset.regression.estimate(landmarks, &hidden)?.rotation
         }
         Method::Geometry => {
             let five = match map {

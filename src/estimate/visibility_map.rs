@@ -83,6 +83,11 @@ impl VisibilityMap {
         let (dx, dy, dz) = (m[(2, 0)], m[(2, 1)], m[(2, 2)]);
         let pitch = -dy.clamp(-1.0, 1.0).asin().to_degrees();
         let yaw = dx.atan2(dz).to_degrees();
+        self.lookup_yaw_pitch(yaw, pitch)
+    }
+
+    /// The visibility at the roll-free pose (yaw, pitch) in degrees (any roll sees the same).
+    pub fn lookup_yaw_pitch(&self, yaw: f64, pitch: f64) -> &[bool] {
         let index = |v: f64, r: &AngleRange| {
             (((v - r.min) / r.step).round().max(0.0) as usize).min(r.len() - 1)
         };

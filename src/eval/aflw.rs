@@ -161,3 +161,137 @@ pub fn aflw_markdown(rows: &[AflwRow]) -> String {
     }
     s
 }
+
+/// Width of the |yaw| bins of [`error_by_yaw`], degrees.
+pub const CURVE_BIN: f64 = 10.0;
+
+/// The plot of error against yaw: one panel per landmark source, one line per method, the
+/// mean of the three absolute errors per 10° bin of |true yaw| (at the bin centre; bins with
+/// fewer than 3 faces left out).
+pub fn error_by_yaw(rows: &[AflwRow]) -> Vec<super::plot::Panel> {
+    let mut sources: Vec<Source> = Vec::new();
+    for r in rows {
+        if !sources.contains(&r.source) {
+            sources.push(r.source);
+        }
+    }
+    sources
+        .into_iter()
+        .map(|s| super::plot::Panel {
+            title: format!("landmarks: {}", s.name()),
+            x_label: "|true yaw| (°)".into(),
+            y_label: "MAE of pitch, yaw, roll (°)".into(),
+            series: rows
+                .iter()
+                .filter(|r| r.source == s)
+                .map(|r| {
+                    let nb = (99.0 / CURVE_BIN).ceil() as usize;
+                    let mut sum = vec![(0.0, 0usize); nb];
+                    for &(y, e) in &r.per_face {
+                        let b = ((y / CURVE_BIN) as usize).min(nb - 1);
+                        sum[b].0 += e;
+                        sum[b].1 += 1;
+                    }
+                    super::plot::Series {
+                        name: r.method.to_string(),
+                        points: sum
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, (_, n))| *n >= 3)
+                            .map(|(b, (e, n))| ((b as f64 + 0.5) * CURVE_BIN, e / *n as f64))
+                            .collect(),
+                    }
+                })
+                .collect(),
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{WeakPerspective, rotation_rows};
+    use crate::model::default_model;
+    use nalgebra::Vector2;
+
+    /// A face whose landmarks are the default model's mean seen at a known pose.
+    fn face(model: &PoseModel, yaw: f64, pitch: f64, roll: f64) -> AflwFace {
+        let a = EulerAngles::new(yaw, pitch, roll).unwrap();
+        let cam = WeakPerspective::new(a.to_rotation(), 1.6, Vector2::new(225.0, -226.0)).unwrap();
+        let pts: Vec<[f64; 2]> = model
+            .mean
+            .iter()
+            .map(|x| {
+                let p = cam.project(x);
+                [p.x, p.y]
+            })
+            .collect();
+        AflwFace {
+            image: format!("synthetic_{yaw}_{pitch}_{roll}"),
+            pitch,
+            yaw,
+            roll,
+            rotation: rotation_rows(&a.to_rotation()),
+            within_99: true,
+            landmarks_fitted: pts.clone(),
+            landmarks_reannotated: pts,
+        }
+    }
+
+    #[test]
+    fn faces_made_from_a_known_pose_give_no_error() {
+        let (_, model) = default_model().unwrap();
+        let mut faces = vec![
+            face(&model, 10.0, -5.0, 3.0),
+            face(&model, -40.0, 15.0, -8.0),
+            face(&model, 70.0, 5.0, 0.0),
+        ];
+        faces.push(AflwFace {
+            within_99: false,
+            ..face(&model, 120.0, 0.0, 0.0)
+        });
+        for source in [Source::Fitted, Source::Reannotated] {
+            let row = evaluate(&model, &faces, Method::Fit, source);
+            assert_eq!(
+                (row.faces, row.failures),
+                (3, 0),
+                "the 4th face is not within_99"
+            );
+            assert!(row.mae_mean < 1e-6 && row.geodesic < 1e-6, "{row:?}");
+            assert_eq!(row.faces_by_yaw, [1, 1, 1]);
+            assert_eq!(row.per_face.len(), 3);
+        }
+        let panels = error_by_yaw(&[evaluate(&model, &faces, Method::Fit, Source::Fitted)]);
+        assert_eq!(panels.len(), 1);
+        // Bins need 3 faces: one face per bin here, so no points.
+        assert!(panels[0].series[0].points.is_empty());
+    }
+
+    #[test]
+    fn the_yaw_curve_averages_per_bin() {
+        let row = AflwRow {
+            method: Method::Fit,
+            source: Source::Five,
+            faces: 7,
+            failures: 0,
+            mae_pitch: 0.0,
+            mae_yaw: 0.0,
+            mae_roll: 0.0,
+            mae_mean: 0.0,
+            geodesic: 0.0,
+            mae_by_yaw: [0.0; 3],
+            faces_by_yaw: [0; 3],
+            per_face: vec![
+                (1.0, 1.0),
+                (5.0, 2.0),
+                (9.9, 3.0),
+                (42.0, 4.0),
+                (45.0, 6.0),
+                (48.0, 8.0),
+                (98.0, 1.0),
+            ],
+        };
+        let p = &error_by_yaw(&[row])[0];
+        assert_eq!(p.series[0].points, vec![(5.0, 2.0), (45.0, 6.0)]);
+    }
+}

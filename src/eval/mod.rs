@@ -2,4 +2,6 @@
 
 pub mod aflw;
 pub mod hpr_table;
+pub mod paper;
+pub mod plot;
 pub mod sfm_check;

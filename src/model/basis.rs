@@ -1,11 +1,82 @@
-//! A shape basis learned from a population: principal components of the shapes after rigid
-//! alignment to their mean (size variation stays in the basis, in mm).
+//! Shape bases for the shape fit: principal components learned from a population (after rigid
+//! alignment to their mean; size variation stays in the basis, in mm), or a given morphable
+//! model's identity and expression bases, expressed in the model's frame.
 
 use nalgebra::{DMatrix, SymmetricEigen, Vector3};
 
 use crate::error::{Error, Result};
 use crate::estimate::morph_fit::MorphableBasis;
 use crate::geometry::{Scaling, align3};
+
+/// A linear morphable model as published: `shape = mean + Σ a_k identity_k + Σ b_k
+/// expression_k`, `a_k ~ N(identity_mean_k, 1)`, `b_k ~ N(expression_mean_k, 1)`, bases in mm per
+/// standard deviation (e.g. ../shared/data/bfm68/morphable_model.json).
+#[derive(Debug, Clone)]
+pub struct MorphableModel {
+    pub mean: Vec<Vector3<f64>>,
+    pub shape_basis: Vec<Vec<Vector3<f64>>>,
+    pub shape_coef_mean: Vec<f64>,
+    pub expression_basis: Vec<Vec<Vector3<f64>>>,
+    pub expression_coef_mean: Vec<f64>,
+}
+
+/// The shape fit's basis from a morphable model, moved into the frame of `frame_mean` (a mean
+/// shape of the same points, model frame): the rotation and translation that best align the
+/// model's prior shape to it are applied to the mean and the bases. Expression coefficients get
+/// a prior `expression_spread` times wider than the model states (in-the-wild faces vary more
+/// in expression than the fits the model's statistics come from; docs/RESULTS.md).
+pub fn morphable_basis(
+    model: &MorphableModel,
+    frame_mean: &[Vector3<f64>],
+    expression_spread: f64,
+) -> Result<MorphableBasis> {
+    if !(expression_spread.is_finite() && expression_spread > 0.0) {
+        return Err(Error::param(
+            "expression_spread",
+            format!("must be positive, got {expression_spread}"),
+        ));
+    }
+    if model.shape_basis.len() != model.shape_coef_mean.len()
+        || model.expression_basis.len() != model.expression_coef_mean.len()
+    {
+        return Err(Error::param(
+            "morphable model",
+            "each basis needs one coefficient mean per component",
+        ));
+    }
+    let mut components = model.shape_basis.clone();
+    components.extend(
+        model
+            .expression_basis
+            .iter()
+            .map(|b| b.iter().map(|v| v * expression_spread).collect::<Vec<_>>()),
+    );
+    let mut prior = model.shape_coef_mean.clone();
+    prior.extend(
+        model
+            .expression_coef_mean
+            .iter()
+            .map(|m| m / expression_spread),
+    );
+    let raw = MorphableBasis::new(model.mean.clone(), components, prior)?;
+    if frame_mean.len() != raw.mean().len() {
+        return Err(Error::PointCount {
+            what: "mean shape for the morphable model's frame".into(),
+            expected: raw.mean().len(),
+            got: frame_mean.len(),
+        });
+    }
+    let t = align3(raw.prior_shape(), frame_mean, Scaling::Rigid)?;
+    let r = t.rotation;
+    MorphableBasis::new(
+        raw.mean().iter().map(|p| t.apply(p)).collect(),
+        raw.components()
+            .iter()
+            .map(|c| c.iter().map(|v| r * v).collect())
+            .collect(),
+        raw.prior_mean().to_vec(),
+    )
+}
 
 /// The principal components of `shapes` around `mean` (both model frame, same points): at most
 /// `max_components`, stopping once `variance` of the total is explained. Each basis shape is in
@@ -67,6 +138,46 @@ pub fn pca_basis(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::EulerAngles;
+
+    #[test]
+    fn a_morphable_model_moves_into_the_mean_frame() {
+        // A model whose prior shape is the frame mean turned by 5° of yaw and shifted: the basis
+        // must come back into the frame, components turned alike, expression spread applied.
+        let frame: Vec<Vector3<f64>> = (0..8)
+            .map(|i| {
+                let a = i as f64 * 0.8;
+                Vector3::new(40.0 * a.cos(), 30.0 * a.sin(), 10.0 * (i % 3) as f64)
+            })
+            .collect();
+        let c = frame.iter().sum::<Vector3<f64>>() / 8.0;
+        let frame: Vec<Vector3<f64>> = frame.iter().map(|p| p - c).collect();
+        let turn = EulerAngles::new(5.0, 0.0, 0.0).unwrap().to_rotation();
+        let shift = Vector3::new(3.0, -2.0, 7.0);
+        let id: Vec<Vector3<f64>> = (0..8).map(|i| Vector3::new(0.0, 0.0, i as f64)).collect();
+        let ex: Vec<Vector3<f64>> = (0..8).map(|i| Vector3::new(i as f64, 0.0, 0.0)).collect();
+        let model = MorphableModel {
+            // mean + 1.0 * id (identity prior mean 1) is the turned frame shape.
+            mean: frame
+                .iter()
+                .zip(&id)
+                .map(|(p, b)| turn * p + shift - turn * b)
+                .collect(),
+            shape_basis: vec![id.iter().map(|b| turn * b).collect()],
+            shape_coef_mean: vec![1.0],
+            expression_basis: vec![ex.iter().map(|b| turn * b).collect()],
+            expression_coef_mean: vec![0.0],
+        };
+        let b = morphable_basis(&model, &frame, 3.0).unwrap();
+        for (p, q) in b.prior_shape().iter().zip(&frame) {
+            assert!((p - q).norm() < 1e-9, "{p} vs {q}");
+        }
+        for (v, e) in b.components()[1].iter().zip(&ex) {
+            assert!((v - 3.0 * e).norm() < 1e-9);
+        }
+        assert!(morphable_basis(&model, &frame, 0.0).is_err());
+        assert!(morphable_basis(&model, &frame[..7], 1.0).is_err());
+    }
 
     #[test]
     fn recovers_a_one_dimensional_family() {
@@ -83,13 +194,13 @@ mod tests {
             .map(|a| base.iter().map(|p| p + *a * p / len).collect())
             .collect();
         let b = pca_basis(&shapes, &base, 10, 0.9999).unwrap();
-        assert_eq!(b.basis.len(), 1);
-        let norm: f64 = b.basis[0]
+        assert_eq!(b.components().len(), 1);
+        let norm: f64 = b.components()[0]
             .iter()
             .map(|v| v.norm_squared())
             .sum::<f64>()
             .sqrt();
         assert!((norm - 2.5f64.sqrt()).abs() < 1e-9, "{norm}");
-        assert_eq!(b.prior_mean, vec![0.0]);
+        assert_eq!(b.prior_mean(), &[0.0]);
     }
 }

@@ -153,9 +153,9 @@ impl Bundle {
             })
             .collect::<Result<Vec<_>, BundleError>>()?;
         let shape_basis = model.morph.as_ref().map(|b| BasisEntry {
-            mean: to_arrays(&b.mean),
-            components: b.basis.iter().map(|c| to_arrays(c)).collect(),
-            prior_mean: b.prior_mean.clone(),
+            mean: to_arrays(b.mean()),
+            components: b.components().iter().map(|c| to_arrays(c)).collect(),
+            prior_mean: b.prior_mean().to_vec(),
         });
         let mut bundle = Bundle {
             format: FORMAT.into(),

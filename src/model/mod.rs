@@ -21,7 +21,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::PaperHpr;
 use crate::shape::{Scheme, Shape2};
 
-pub use train::{RegressionParams, TrainOptions, train, train_from_population};
+pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_population};
 
 /// How a sub-scheme's points come from the model scheme's points.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
@@ -44,6 +44,23 @@ impl SubsetMap {
                 .iter()
                 .map(|a| a.iter().map(|&i| pts[i]).sum::<Vector3<f64>>() / a.len() as f64)
                 .collect(),
+        }
+    }
+
+    /// Marks in `out` the subset's points hidden under the model's visibility `vis` (an anchor is
+    /// hidden when all its points are); allocation-free.
+    pub fn hidden_into(&self, scheme: &Scheme, vis: &[bool], out: &mut [bool]) {
+        match self {
+            SubsetMap::Indices(idx) => {
+                for (o, &i) in out.iter_mut().zip(idx) {
+                    *o = !vis[i];
+                }
+            }
+            SubsetMap::Anchors => {
+                for (o, a) in out.iter_mut().zip(scheme.anchors.as_array()) {
+                    *o = !a.iter().any(|&i| vis[i]);
+                }
+            }
         }
     }
 

@@ -167,13 +167,28 @@ pub fn train(
     })
 }
 
+/// Where the shape fit's basis comes from.
+#[derive(Debug, Clone)]
+pub enum BasisSource<'a> {
+    /// No basis: the model has no `fit-shape`.
+    None,
+    /// Up to this many principal components of the training shapes.
+    Pca(usize),
+    /// A published morphable model over the same points, with its expression prior widened by
+    /// `expression_spread` (see [`super::basis::morphable_basis`]).
+    Morphable {
+        model: &'a super::basis::MorphableModel,
+        expression_spread: f64,
+    },
+}
+
 /// Trains from a population of 3D shapes (mm, model frame, all points): the mean by generalized
-/// Procrustes analysis, frontalized, and a shape basis of up to `components` principal
-/// components (none when 0) for the shape fit. Every shape also serves as validation for `ε`.
+/// Procrustes analysis, frontalized, and the shape fit's basis from `basis`. Every shape also
+/// serves as validation for `ε`.
 pub fn train_from_population(
     scheme: &Scheme,
     shapes: &[Vec<Vector3<f64>>],
-    components: usize,
+    basis: BasisSource<'_>,
     opts: &TrainOptions,
 ) -> Result<PoseModel> {
     if shapes.len() < 2 {
@@ -184,10 +199,17 @@ pub fn train_from_population(
         crate::geometry::procrustes::GpaOptions::default(),
     )?;
     let mean = Shape3::full(gpa)?.frontalized(scheme)?.points().to_vec();
-    let basis = if components > 0 {
-        Some(super::basis::pca_basis(shapes, &mean, components, 0.999)?)
-    } else {
-        None
+    let basis = match basis {
+        BasisSource::None | BasisSource::Pca(0) => None,
+        BasisSource::Pca(k) => Some(super::basis::pca_basis(shapes, &mean, k, 0.999)?),
+        BasisSource::Morphable {
+            model,
+            expression_spread,
+        } => Some(super::basis::morphable_basis(
+            model,
+            &mean,
+            expression_spread,
+        )?),
     };
     train(scheme, &mean, shapes, basis, opts)
 }
@@ -325,15 +347,13 @@ fn choose_epsilon(
     val: &[(Shape2, EulerAngles)],
     candidates: &[f64],
 ) -> Result<RegressionModel> {
-    let none = |_: &EulerAngles| Vec::new();
+    let none = |_: f64, _: f64, _: &mut [bool]| {};
     let mut best: Option<(f64, f64)> = None;
     for &eps in candidates {
         let mut err = 0.0;
         for (shape, truth) in val {
             err += match model.estimate_with(shape, &none, eps) {
-                Ok(e) => {
-                    crate::geometry::geodesic_deg(&e.angles.to_rotation(), &truth.to_rotation())
-                }
+                Ok(e) => crate::geometry::geodesic_deg(&e.rotation, &truth.to_rotation()),
                 Err(_) => 90.0,
             };
         }

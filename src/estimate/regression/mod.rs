@@ -13,12 +13,14 @@
 //! - **View bins.** A coarse model over the whole pose range picks the fine model (bin) whose
 //!   yaw range holds the coarse estimate, out to profile views.
 
-use std::collections::HashMap;
-use std::sync::{Arc, Mutex};
+mod cache;
 
-use nalgebra::{DMatrix, DVector, Vector2};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use nalgebra::{DMatrix, DVector, Rotation3, Vector2};
 use serde::{Deserialize, Serialize};
 
+use self::cache::{BoundedCache, Key, Pattern};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
 use crate::shape::Shape2;
@@ -39,10 +41,31 @@ pub struct ViewBin {
     pub views: Vec<TrainingView>,
 }
 
-/// A ridge solution: `[yaw, pitch, roll - φ] = W [f; 1]` (rows of length `2n + 1`).
+/// A ridge solution for one bin and missing pattern: `[yaw, pitch, roll - φ] = W [f; 1]`, with
+/// the sums of its point columns over the pattern's points, so that a query can be centred and
+/// normalized on the fly instead of building its feature vector.
 #[derive(Debug, Clone)]
 struct Solution {
+    /// `3 x (2n + 1)`, column-major: point `i`'s six weights are contiguous at `6i..6i + 6`.
     w: DMatrix<f64>,
+    sum_x: [f64; 3],
+    sum_y: [f64; 3],
+}
+
+impl Solution {
+    fn new(w: DMatrix<f64>, missing: &[bool]) -> Self {
+        let (mut sum_x, mut sum_y) = ([0.0; 3], [0.0; 3]);
+        let ws = w.as_slice();
+        for (i, &m) in missing.iter().enumerate() {
+            if !m {
+                for j in 0..3 {
+                    sum_x[j] += ws[6 * i + j];
+                    sum_y[j] += ws[6 * i + 3 + j];
+                }
+            }
+        }
+        Solution { w, sum_x, sum_y }
+    }
 }
 
 /// Sufficient statistics of one bin under one missing pattern.
@@ -53,15 +76,10 @@ struct Stats {
     used: usize,
 }
 
-type Cache<T> = Mutex<HashMap<(usize, Vec<u64>), Arc<T>>>;
-
-fn insert_bounded<T>(cache: &Cache<T>, k: (usize, Vec<u64>), v: Arc<T>) {
-    let mut c = cache.lock().unwrap_or_else(|e| e.into_inner());
-    if c.len() >= CACHE_LIMIT {
-        c.clear();
-    }
-    c.insert(k, v);
-}
+/// Solutions kept per (bin, ε, pattern); the oldest go first.
+const SOLUTION_LIMIT: usize = 1024;
+/// Sufficient statistics kept: `(2n + 1)²` numbers each, so few.
+const STATS_LIMIT: usize = 8;
 
 /// The regression over one scheme's points, with its view bins.
 #[derive(Debug)]
@@ -72,29 +90,29 @@ pub struct RegressionModel {
     /// Bin 0 is the coarse model over the whole range; the others are the fine bins.
     bins: Vec<ViewBin>,
     epsilon: f64,
-    cache: Cache<Solution>,
-    stats_cache: Cache<Stats>,
+    /// The all-points-present solution of each bin at `epsilon`: the common query, lock-free.
+    full: Vec<OnceLock<Arc<Solution>>>,
+    cache: BoundedCache<Solution>,
+    stats_cache: BoundedCache<Stats>,
+    /// Serializes the computation of new statistics, so that a burst of queries with one new
+    /// pattern computes it once.
+    building: Mutex<()>,
 }
-
-/// Most patterns kept in the cache before it is cleared.
-const CACHE_LIMIT: usize = 1024;
 
 /// A regression answer.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RegressionEstimate {
-    pub angles: EulerAngles,
+    pub rotation: Rotation3<f64>,
     /// Which bin answered.
     pub bin: usize,
 }
 
-fn key(missing: &[bool]) -> Vec<u64> {
-    let mut k = vec![0u64; missing.len().div_ceil(64)];
-    for (i, &m) in missing.iter().enumerate() {
-        if m {
-            k[i / 64] |= 1 << (i % 64);
-        }
-    }
-    k
+/// The raw output of one bin: yaw and pitch of the roll-free pose and the in-plane residual.
+#[derive(Debug, Clone, Copy)]
+struct RollFree {
+    yaw: f64,
+    pitch: f64,
+    delta: f64,
 }
 
 impl RegressionModel {
@@ -112,12 +130,7 @@ impl RegressionModel {
                 "a regression model needs at least one view bin",
             ));
         }
-        if !(epsilon.is_finite() && epsilon > 0.0) {
-            return Err(Error::param(
-                "epsilon",
-                format!("must be positive, got {epsilon}"),
-            ));
-        }
+        check_epsilon(epsilon)?;
         for (b, bin) in bins.iter().enumerate() {
             if bin.views.len() < 3 {
                 return Err(Error::too_few(
@@ -144,14 +157,17 @@ impl RegressionModel {
         {
             return Err(Error::param("eye anchors", "out of range or empty"));
         }
+        let full = (0..bins.len()).map(|_| OnceLock::new()).collect();
         Ok(RegressionModel {
             n_points,
             eye_left,
             eye_right,
             bins,
             epsilon,
-            cache: Mutex::new(HashMap::new()),
-            stats_cache: Mutex::new(HashMap::new()),
+            full,
+            cache: BoundedCache::new(SOLUTION_LIMIT),
+            stats_cache: BoundedCache::new(STATS_LIMIT),
+            building: Mutex::new(()),
         })
     }
 
@@ -167,14 +183,10 @@ impl RegressionModel {
 
     /// Sets the ridge parameter (solutions cached for the old one are dropped).
     pub fn set_epsilon(&mut self, epsilon: f64) -> Result<()> {
-        if !(epsilon.is_finite() && epsilon > 0.0) {
-            return Err(Error::param(
-                "epsilon",
-                format!("must be positive, got {epsilon}"),
-            ));
-        }
+        check_epsilon(epsilon)?;
         self.epsilon = epsilon;
-        self.cache.lock().unwrap_or_else(|e| e.into_inner()).clear();
+        self.full = (0..self.bins.len()).map(|_| OnceLock::new()).collect();
+        self.cache.clear();
         Ok(())
     }
 
@@ -183,27 +195,22 @@ impl RegressionModel {
         self.n_points
     }
 
+    /// Solutions cached for patterns other than all-present (for tests and metrics).
+    pub fn cached_patterns(&self) -> usize {
+        self.cache.len()
+    }
+
     /// The eye-line angle φ (degrees, clockwise on screen; eyes from the points not flagged in
     /// `eyes_from`) and the de-rolled, centred, energy-normalized feature vector with the
     /// `missing` points zeroed and `1` appended; `None` when an eye or the shape is missing.
+    /// Training builds its vectors with it; queries compute the same thing on the fly.
     fn features(
         &self,
         points: &[Vector2<f64>],
         eyes_from: &[bool],
         missing: &[bool],
     ) -> Option<(f64, DVector<f64>)> {
-        let anchor = |idx: &[usize]| {
-            let (mut s, mut k) = (Vector2::zeros(), 0);
-            for &i in idx {
-                if !eyes_from[i] {
-                    s += points[i];
-                    k += 1;
-                }
-            }
-            (k > 0).then(|| s / k as f64)
-        };
-        let d = anchor(&self.eye_right)? - anchor(&self.eye_left)?;
-        let phi = d.y.atan2(d.x);
+        let phi = self.eye_line(points, eyes_from)?;
         let (s, c) = phi.sin_cos();
         let mut f = DVector::zeros(2 * self.n_points + 1);
         let (mut cx, mut cy, mut k) = (0.0, 0.0, 0);
@@ -238,17 +245,33 @@ impl RegressionModel {
         Some((phi.to_degrees(), f))
     }
 
+    /// The eye-line angle in radians (image frame: clockwise on screen), eyes from the points
+    /// not flagged in `absent`.
+    fn eye_line(&self, points: &[Vector2<f64>], absent: &[bool]) -> Option<f64> {
+        let anchor = |idx: &[usize]| {
+            let (mut s, mut k) = (Vector2::zeros(), 0);
+            for &i in idx {
+                if !absent[i] {
+                    s += points[i];
+                    k += 1;
+                }
+            }
+            (k > 0).then(|| s / k as f64)
+        };
+        let d = anchor(&self.eye_right)? - anchor(&self.eye_left)?;
+        (d.norm_squared() > 0.0).then(|| d.y.atan2(d.x))
+    }
+
     /// The sufficient statistics `(F Fᵀ, T Fᵀ, count)` of bin `b` for a missing pattern: every
     /// training view re-normalized with the pattern's points zeroed, plus its own hidden points.
     fn stats(&self, b: usize, missing: &[bool]) -> Result<Arc<Stats>> {
-        let k = (b, key(missing));
-        if let Some(s) = self
-            .stats_cache
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .get(&k)
-        {
-            return Ok(s.clone());
+        let key = Key {
+            bin: b,
+            epsilon_bits: 0,
+            pattern: Pattern::of(missing),
+        };
+        if let Some(s) = self.stats_cache.get(&key) {
+            return Ok(s);
         }
         let d = 2 * self.n_points + 1;
         let mut ff = DMatrix::<f64>::zeros(d, d);
@@ -282,18 +305,44 @@ impl RegressionModel {
         }
         ff.fill_upper_triangle_with_lower_triangle();
         let stats = Arc::new(Stats { ff, tf, used });
-        insert_bounded(&self.stats_cache, k, stats.clone());
+        self.stats_cache.insert(key, stats.clone());
         Ok(stats)
     }
 
-    /// The ridge solution of bin `b` for a missing pattern and ridge parameter `epsilon`.
-    fn solve(&self, b: usize, missing: &[bool], epsilon: f64) -> Result<Arc<Solution>> {
-        let k = (b, key(missing));
-        if epsilon == self.epsilon
-            && let Some(s) = self.cache.lock().unwrap_or_else(|e| e.into_inner()).get(&k)
+    /// The ridge solution of bin `b` for a missing pattern and ridge parameter `epsilon`:
+    /// cached per (bin, ε, pattern); the all-present one at the model's ε without a lock.
+    fn solution(&self, b: usize, missing: &[bool], epsilon: f64) -> Result<Arc<Solution>> {
+        let all_present = !missing.iter().any(|&m| m);
+        if all_present
+            && epsilon == self.epsilon
+            && let Some(s) = self.full[b].get()
         {
             return Ok(s.clone());
         }
+        let key = Key {
+            bin: b,
+            epsilon_bits: epsilon.to_bits(),
+            pattern: Pattern::of(missing),
+        };
+        if let Some(s) = self.cache.get(&key) {
+            return Ok(s);
+        }
+        // One builder at a time; another may have finished while this one waited.
+        let _guard = self.building.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(s) = self.cache.get(&key) {
+            return Ok(s);
+        }
+        let sol = Arc::new(Solution::new(self.solve(b, missing, epsilon)?, missing));
+        if all_present && epsilon == self.epsilon {
+            let _ = self.full[b].set(sol.clone());
+        } else {
+            self.cache.insert(key, sol.clone());
+        }
+        Ok(sol)
+    }
+
+    /// Solves the ridge system (paper eq. 18) of bin `b` for a pattern.
+    fn solve(&self, b: usize, missing: &[bool], epsilon: f64) -> Result<DMatrix<f64>> {
         let st = self.stats(b, missing)?;
         let d = st.ff.nrows();
         let mut ff = st.ff.clone();
@@ -305,21 +354,15 @@ impl RegressionModel {
         let chol = ff
             .cholesky()
             .ok_or_else(|| Error::Numerical("the ridge system is not positive definite".into()))?;
-        let sol = Arc::new(Solution {
-            w: chol.solve(&st.tf.transpose()).transpose(),
-        });
-        if epsilon == self.epsilon {
-            insert_bounded(&self.cache, k, sol.clone());
-        }
-        Ok(sol)
+        Ok(chol.solve(&st.tf.transpose()).transpose())
     }
 
-    /// The stored solution for the pattern with every point present, per bin (rows of length
-    /// `2n + 1`): the paper's regression matrices.
+    /// The all-present solution per bin (rows of length `2n + 1`): the paper's regression
+    /// matrices, as a bundle stores them.
     pub fn full_pattern_matrices(&self) -> Result<Vec<DMatrix<f64>>> {
         let none = vec![false; self.n_points];
         (0..self.bins.len())
-            .map(|b| Ok(self.solve(b, &none, self.epsilon)?.w.clone()))
+            .map(|b| Ok(self.solution(b, &none, self.epsilon)?.w.clone()))
             .collect()
     }
 
@@ -347,49 +390,61 @@ impl RegressionModel {
                     ),
                 ));
             }
-            insert_bounded(&self.cache, (b, key(&none)), Arc::new(Solution { w }));
+            let _ = self.full[b].set(Arc::new(Solution::new(w, &none)));
         }
         Ok(())
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn predict(
-        &self,
-        b: usize,
-        points: &[Vector2<f64>],
-        absent: &[bool],
-        missing: &[bool],
-        epsilon: f64,
-    ) -> Result<EulerAngles> {
-        let (phi, f) = self.features(points, absent, missing).ok_or_else(|| {
-            Error::Degenerate("regression needs both eyes and two or more distinct points".into())
-        })?;
-        let sol = self.solve(b, missing, epsilon)?;
-        let out = &sol.w * f;
-        // The de-rolled shape looks like the roll-free pose Rx(pitch) Ry(yaw) turned in the
-        // image plane by out[2]; undoing the de-roll turns it by φ more: R = Rz(φ + δ) Rx Ry.
-        let roll_free = EulerAngles {
+    /// Applies a solution to de-rolled points (`derolled[i]`, ignored where `missing`): the
+    /// query is centred and energy-normalized over its present points on the fly, exactly as
+    /// [`Self::features`] builds training vectors.
+    fn apply(sol: &Solution, derolled: &[[f64; 2]], missing: &[bool]) -> Option<RollFree> {
+        let ws = sol.w.as_slice();
+        let (mut k, mut sx, mut sy, mut sq) = (0usize, 0.0, 0.0, 0.0);
+        let mut dot = [0.0; 3];
+        for (i, (p, &m)) in derolled.iter().zip(missing).enumerate() {
+            if m {
+                continue;
+            }
+            let [x, y] = *p;
+            let wi = &ws[6 * i..6 * i + 6];
+            dot[0] += wi[0] * x + wi[3] * y;
+            dot[1] += wi[1] * x + wi[4] * y;
+            dot[2] += wi[2] * x + wi[5] * y;
+            sx += x;
+            sy += y;
+            sq += x * x + y * y;
+            k += 1;
+        }
+        if k < 2 {
+            return None;
+        }
+        let (cx, cy) = (sx / k as f64, sy / k as f64);
+        let norm2 = sq - k as f64 * (cx * cx + cy * cy);
+        // Relative to the points' spread from the origin, so that a shape far from the image
+        // origin is not called degenerate by rounding.
+        if norm2.is_nan() || norm2 <= 1e-18 * sq.max(1e-300) {
+            return None;
+        }
+        let inv = 1.0 / norm2.sqrt();
+        let n = missing.len();
+        let out: [f64; 3] = std::array::from_fn(|j| {
+            (dot[j] - cx * sol.sum_x[j] - cy * sol.sum_y[j]) * inv + ws[6 * n + j]
+        });
+        Some(RollFree {
             yaw: out[0],
             pitch: out[1],
-            roll: 0.0,
-        }
-        .to_rotation();
-        let in_plane = EulerAngles {
-            yaw: 0.0,
-            pitch: 0.0,
-            roll: phi + out[2],
-        }
-        .to_rotation();
-        Ok(EulerAngles::from_rotation(&(in_plane * roll_free)))
+            delta: out[2],
+        })
     }
 
-    /// Estimates the pose of `landmarks` (image pixels) with `missing` as the points to ignore
-    /// in addition to the shape's own missing ones; `hidden_at` gives the points hidden at a
-    /// pose (HPR), for the second pass.
+    /// Estimates the pose of `landmarks` (image pixels; missing points ignored). `hidden_at`
+    /// marks in its buffer the points hidden at a roll-free (yaw, pitch) (HPR), for the second
+    /// pass.
     pub fn estimate(
         &self,
         landmarks: &Shape2,
-        hidden_at: &dyn Fn(&EulerAngles) -> Vec<bool>,
+        hidden_at: &dyn Fn(f64, f64, &mut [bool]),
     ) -> Result<RegressionEstimate> {
         self.estimate_with(landmarks, hidden_at, self.epsilon)
     }
@@ -399,40 +454,85 @@ impl RegressionModel {
     pub fn estimate_with(
         &self,
         landmarks: &Shape2,
-        hidden_at: &dyn Fn(&EulerAngles) -> Vec<bool>,
+        hidden_at: &dyn Fn(f64, f64, &mut [bool]),
         epsilon: f64,
     ) -> Result<RegressionEstimate> {
-        if landmarks.len() != self.n_points {
+        let n = self.n_points;
+        if landmarks.len() != n {
             return Err(Error::PointCount {
                 what: "landmarks".into(),
-                expected: self.n_points,
+                expected: n,
                 got: landmarks.len(),
             });
         }
-        let points = landmarks.points();
-        let missing: Vec<bool> = landmarks.present().iter().map(|p| !p).collect();
-        // Coarse pass on bin 0, then the fine bin that holds it.
-        let coarse = self.predict(0, points, &missing, &missing, epsilon)?;
-        let bin = self.pick_bin(&coarse);
-        let first = if bin == 0 {
-            coarse
-        } else {
-            self.predict(bin, points, &missing, &missing, epsilon)?
-        };
-        let hidden = hidden_at(&first);
-        let mut second_missing = missing.clone();
-        for (m, h) in second_missing.iter_mut().zip(&hidden) {
-            *m |= *h;
-        }
-        // An empty answer means: no second pass.
-        if second_missing == missing || second_missing.iter().filter(|m| !**m).count() < 3 {
-            return Ok(RegressionEstimate { angles: first, bin });
-        }
-        let angles = self.predict(bin, points, &missing, &second_missing, epsilon)?;
-        Ok(RegressionEstimate { angles, bin })
+        SCRATCH.with(|cell| match cell.try_borrow_mut() {
+            Ok(mut scratch) => {
+                scratch.prepare(n);
+                self.query(landmarks, hidden_at, epsilon, &mut scratch)
+            }
+            // Re-entered from `hidden_at`: use fresh buffers.
+            Err(_) => {
+                let mut scratch = Scratch::default();
+                scratch.prepare(n);
+                self.query(landmarks, hidden_at, epsilon, &mut scratch)
+            }
+        })
     }
 
-    fn pick_bin(&self, a: &EulerAngles) -> usize {
+    fn query(
+        &self,
+        landmarks: &Shape2,
+        hidden_at: &dyn Fn(f64, f64, &mut [bool]),
+        epsilon: f64,
+        scratch: &mut Scratch,
+    ) -> Result<RegressionEstimate> {
+        let degenerate = || {
+            Error::Degenerate("regression needs both eyes and two or more distinct points".into())
+        };
+        let Scratch {
+            missing,
+            derolled,
+            hidden,
+        } = scratch;
+        let points = landmarks.points();
+        for (m, p) in missing.iter_mut().zip(landmarks.present()) {
+            *m = !p;
+        }
+        let phi = self.eye_line(points, missing).ok_or_else(degenerate)?;
+        let (s, c) = phi.sin_cos();
+        for (d, p) in derolled.iter_mut().zip(points) {
+            *d = [c * p.x + s * p.y, -s * p.x + c * p.y];
+        }
+        // Coarse pass on bin 0, then the fine bin that holds it.
+        let coarse = Self::apply(&*self.solution(0, missing, epsilon)?, derolled, missing)
+            .ok_or_else(degenerate)?;
+        let bin = self.pick_bin(coarse.yaw, coarse.pitch);
+        let mut first = coarse;
+        if bin != 0 {
+            first = Self::apply(&*self.solution(bin, missing, epsilon)?, derolled, missing)
+                .ok_or_else(degenerate)?;
+        }
+        // Points hidden at the first estimate join the missing ones for a second pass.
+        hidden_at(first.yaw, first.pitch, hidden);
+        let mut grew = false;
+        for (m, h) in missing.iter_mut().zip(hidden.iter()) {
+            if *h && !*m {
+                *m = true;
+                grew = true;
+            }
+        }
+        let mut result = first;
+        if grew && missing.iter().filter(|m| !**m).count() >= 3 {
+            result = Self::apply(&*self.solution(bin, missing, epsilon)?, derolled, missing)
+                .ok_or_else(degenerate)?;
+        }
+        Ok(RegressionEstimate {
+            rotation: compose(phi.to_degrees() + result.delta, result.pitch, result.yaw),
+            bin,
+        })
+    }
+
+    fn pick_bin(&self, yaw: f64, pitch: f64) -> usize {
         if self.bins.len() == 1 {
             return 0;
         }
@@ -440,12 +540,65 @@ impl RegressionModel {
             .min_by(|&i, &j| {
                 let d = |b: usize| {
                     let g = &self.bins[b].grid;
-                    (a.yaw - 0.5 * (g.yaw.min + g.yaw.max)).abs()
-                        + (a.pitch - 0.5 * (g.pitch.min + g.pitch.max)).abs()
+                    (yaw - 0.5 * (g.yaw.min + g.yaw.max)).abs()
+                        + (pitch - 0.5 * (g.pitch.min + g.pitch.max)).abs()
                 };
                 d(i).total_cmp(&d(j))
             })
             .unwrap_or(0)
+    }
+}
+
+/// Per-thread buffers of the query path, so that a query does not allocate.
+#[derive(Default)]
+struct Scratch {
+    missing: Vec<bool>,
+    derolled: Vec<[f64; 2]>,
+    hidden: Vec<bool>,
+}
+
+impl Scratch {
+    fn prepare(&mut self, n: usize) {
+        self.missing.clear();
+        self.missing.resize(n, false);
+        self.derolled.clear();
+        self.derolled.resize(n, [0.0; 2]);
+        self.hidden.clear();
+        self.hidden.resize(n, false);
+    }
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// `Rz(in_plane) · Rx(pitch) · Ry(yaw)`: the de-rolled shape looks like the roll-free pose
+/// turned in the image plane by the regression's residual; undoing the de-roll turns it by the
+/// eye-line angle more (angles in degrees, the convention's matrices).
+fn compose(in_plane: f64, pitch: f64, yaw: f64) -> Rotation3<f64> {
+    let roll_free = EulerAngles {
+        yaw,
+        pitch,
+        roll: 0.0,
+    }
+    .to_rotation();
+    let turn = EulerAngles {
+        yaw: 0.0,
+        pitch: 0.0,
+        roll: in_plane,
+    }
+    .to_rotation();
+    turn * roll_free
+}
+
+fn check_epsilon(epsilon: f64) -> Result<()> {
+    if epsilon.is_finite() && epsilon > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::param(
+            "epsilon",
+            format!("must be positive, got {epsilon}"),
+        ))
     }
 }
 
@@ -513,7 +666,7 @@ mod tests {
     #[test]
     fn recovers_poses_of_its_own_shape_including_roll() {
         let m = model();
-        let none = |_: &EulerAngles| vec![false; 10];
+        let none = |_: f64, _: f64, _: &mut [bool]| {};
         for (yaw, pitch, roll) in [
             (0.0, 0.0, 0.0),
             (13.0, -7.0, 0.0),
@@ -521,7 +674,7 @@ mod tests {
             (18.0, 12.0, -40.0),
         ] {
             let a = EulerAngles::new(yaw, pitch, roll).unwrap();
-            let e = m.estimate(&view(a, 3.0), &none).unwrap().angles;
+            let e = EulerAngles::from_rotation(&m.estimate(&view(a, 3.0), &none).unwrap().rotation);
             assert!(
                 (e.yaw - yaw).abs() < 1.5 && (e.pitch - pitch).abs() < 1.5,
                 "{a:?} -> {e:?}"
@@ -533,23 +686,23 @@ mod tests {
     #[test]
     fn a_missing_point_does_not_bias_the_estimate() {
         let m = model();
-        let none = |_: &EulerAngles| vec![false; 10];
+        let none = |_: f64, _: f64, _: &mut [bool]| {};
         let a = EulerAngles::new(12.0, -9.0, 0.0).unwrap();
-        let full = m.estimate(&view(a, 2.0), &none).unwrap().angles;
-        let part = m
-            .estimate(&view(a, 2.0).with_missing([2, 7]), &none)
-            .unwrap()
-            .angles;
+        let angles =
+            |s: &Shape2| EulerAngles::from_rotation(&m.estimate(s, &none).unwrap().rotation);
+        let full = angles(&view(a, 2.0));
+        let part = angles(&view(a, 2.0).with_missing([2, 7]));
         assert!(
             (full.yaw - part.yaw).abs() < 1.0 && (full.pitch - part.pitch).abs() < 1.0,
             "{full:?} vs {part:?}"
         );
-        assert_eq!(m.cache.lock().unwrap().len(), 2);
+        // One new pattern solved (the all-present one is not in the pattern cache).
+        assert_eq!(m.cached_patterns(), 1);
     }
 
     #[test]
     fn missing_eyes_is_an_error() {
-        let none = |_: &EulerAngles| vec![false; 10];
+        let none = |_: f64, _: f64, _: &mut [bool]| {};
         let v = view(EulerAngles::new(0.0, 0.0, 0.0).unwrap(), 2.0).with_missing([0]);
         assert!(model().estimate(&v, &none).is_err());
     }

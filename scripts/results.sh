@@ -1,0 +1,111 @@
+#!/usr/bin/env bash
+# Regenerates docs/RESULTS.md: runs every command whose output it shows (the accuracy reports of
+# `facepose eval`, `hpr` and `eval-sfm`, and the criterion benches) and writes each output under
+# the command that produced it. Nothing in RESULTS.md is typed by hand but the prose below.
+#
+#   scripts/results.sh             # everything (about 5 minutes on 2 cores, benches included)
+#   scripts/results.sh --no-bench  # reuse the last bench output kept in docs/results/
+#
+# Needs the shared data at ../shared/data (or FACEPOSE_DATA).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export FACEPOSE_DATA="${FACEPOSE_DATA:-../shared/data}"
+export CARGO_TERM_COLOR=never
+
+bench=1
+for arg in "$@"; do
+  case "$arg" in
+    --no-bench) bench=0 ;;
+    *) echo "usage: $0 [--no-bench]" >&2; exit 2 ;;
+  esac
+done
+
+out=docs/RESULTS.md
+tmp="$(mktemp)"
+trap 'rm -f "$tmp"' EXIT
+mkdir -p docs/results
+
+cargo build --release --quiet
+
+# Runs a command, echoing it first; stdout to the given file.
+run() {
+  local file="$1"
+  shift
+  echo "+ $*" >&2
+  eval "$*" >"$file"
+}
+
+# A fenced shell block with the command.
+cmd_block() {
+  printf '```sh\n%s\n```\n\n' "$1"
+}
+
+# A report written by `facepose eval --out DIR`, with its image links made relative to docs/
+# and its headings one level down.
+report() {
+  local dir="$1"
+  sed -e "s|](\([a-z0-9-]*\.png\))|](${dir#docs/}/\1)|g" -e 's/^\(#\{2,\}\) /#\1 /' "$dir/report.md"
+}
+
+paper_cmd="cargo run --release -- eval --protocol paper --out docs/results/paper"
+real_cmd="cargo run --release -- eval --protocol real --out docs/results/real"
+hpr_cmd="cargo run --release -- hpr"
+sfm_cmd="cargo run --release -- eval-sfm"
+run /dev/null "$paper_cmd"
+run /dev/null "$real_cmd"
+run docs/results/hpr.md "$hpr_cmd"
+run docs/results/sfm.md "$sfm_cmd"
+
+# Criterion prints each benchmark's name and its time line; keep those.
+bench_lines() {
+  grep -E 'time:' -B1 | grep -v -E '^(--|Benchmarking|Found|Warning|[[:space:]]*$)' || true
+}
+hpr_bench="cargo bench --bench hpr"
+est_bench="cargo bench --bench estimate"
+if [ "$bench" = 1 ]; then
+  run docs/results/bench-hpr.txt "$hpr_bench 2>/dev/null | bench_lines"
+  run docs/results/bench-estimate.txt "$est_bench 2>/dev/null | bench_lines"
+fi
+
+{
+  cat <<'EOF'
+# Results
+
+Every table and plot below is the unedited output of the command above it, run from the repo root
+on this project's 2-core machine; `scripts/results.sh` runs them all and rewrites this file (the
+plots and raw reports are in `docs/results/`).
+
+## Pose estimation: the paper's protocol
+
+EOF
+  cmd_block "$paper_cmd"
+  report docs/results/paper
+  printf '\n## Pose estimation: real faces\n\n'
+  cmd_block "$real_cmd"
+  report docs/results/real
+  printf '\n## Hidden-point removal\n\n'
+  cmd_block "$hpr_cmd"
+  cat docs/results/hpr.md
+  cat <<'EOF'
+
+- `mesh468` and `ibug68 (from 468)`: HPR on the mesh's 468 points; the 68 ibug points take the visibility of their source vertices. This is the issue's set-up (HPR sees only the points, the truth comes from the mesh's triangles).
+- `ibug68 (68 alone)`: HPR on the 68 mapped points only, as on a 68-point model. It cannot see surfaces that no point samples: the jaw points map to ear-level vertices that the cheek hides after 10-20° of yaw, and the upper lip hides the inner-lip points when the head tilts down; its misses are hidden points called visible (its low recall of hidden points).
+
+## Structure from motion
+
+EOF
+  cmd_block "$sfm_cmd"
+  cat docs/results/sfm.md
+  printf '\n## Speed\n\nCriterion, one core; the estimators on one 68-point face and its five points.\n\n'
+  for b in hpr estimate; do
+    if [ -s "docs/results/bench-$b.txt" ]; then
+      cmd_block "cargo bench --bench $b"
+      printf '```\n'
+      cat "docs/results/bench-$b.txt"
+      printf '```\n\n'
+    fi
+  done
+} >"$tmp"
+mv "$tmp" "$out"
+trap - EXIT
+echo "wrote $out" >&2
