@@ -1,8 +1,10 @@
 //! Estimator speed on one core: one face of 68 points (the default model's mean projected at a
-//! known pose with 1% landmark noise), each method through the public `estimate` entry point,
-//! and the rigid fit alone.
+//! known pose with 1% landmark noise). `estimator/*` times each method's own computation;
+//! `estimate/*` the public entry point, which adds per-point visibility, the residual and the
+//! conversion to angles.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use facepose::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose::estimate::{FitOptions, Method, estimate, fit_rigid};
 use facepose::geometry::{EulerAngles, WeakPerspective};
 use facepose::model::default_model;
@@ -36,20 +38,26 @@ fn estimators(c: &mut Criterion) {
     let (_, model) = default_model().unwrap();
     let lm = face();
     let five = lm.to_five(&ibug68()).unwrap();
-    c.bench_function("fit_rigid/68 points", |b| {
-        b.iter(|| {
-            fit_rigid(
-                black_box(&model.mean),
-                black_box(&lm),
-                &[],
-                None,
-                FitOptions {
-                    hpr_aware: false,
-                    ..FitOptions::default()
-                },
-            )
-            .unwrap()
-        })
+    let rigid = FitOptions::default();
+    c.bench_function("estimator/fit (rigid)/68 points", |b| {
+        b.iter(|| fit_rigid(black_box(&model.mean), black_box(&lm), &[], None, rigid).unwrap())
+    });
+    let basis = model.morph.as_ref().unwrap();
+    c.bench_function("estimator/fit-shape/68 points", |b| {
+        b.iter(|| fit_morphable(basis, black_box(&lm), &[], None, MorphOptions::default()).unwrap())
+    });
+    let subset = model.subset("ibug68").unwrap();
+    let hidden = |yaw: f64, pitch: f64, out: &mut [bool]| {
+        subset.map.hidden_into(
+            &model.scheme,
+            model.visibility.lookup_yaw_pitch(yaw, pitch),
+            out,
+        )
+    };
+    // Warm the per-pattern cache (the HPR second pass), as a service is after its first query.
+    let _ = subset.regression.estimate(&lm, &hidden);
+    c.bench_function("estimator/regression/68 points", |b| {
+        b.iter(|| subset.regression.estimate(black_box(&lm), &hidden).unwrap())
     });
     for m in [
         Method::Fit,
@@ -58,7 +66,6 @@ fn estimators(c: &mut Criterion) {
         Method::Geometry,
         Method::Auto,
     ] {
-        // Warm the regression's per-pattern cache, as a service would be after its first query.
         let _ = estimate(&model, "ibug68", &lm, m);
         c.bench_function(&format!("estimate/{m}/68 points"), |b| {
             b.iter(|| estimate(&model, "ibug68", black_box(&lm), m).unwrap())

@@ -50,6 +50,7 @@ fn service(c: &mut Criterion) {
             scheme: req.scheme.as_deref(),
             method: req.method.as_deref(),
             camera: None,
+            style: None,
         };
         c.bench_function(&format!("estimate_face fit/{name}"), |b| {
             b.iter(|| estimate_face(&model, black_box(&spec)).unwrap())
@@ -77,6 +78,7 @@ fn service(c: &mut Criterion) {
                 method: "fit".into(),
                 camera: None,
                 id: String::new(),
+                landmark_style: String::new(),
             }),
             model: String::new(),
         }

@@ -115,6 +115,7 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
         method: a.method.clone(),
         camera: None,
         id: String::new(),
+        landmark_style: String::new(),
     }
 }
 

@@ -95,6 +95,15 @@ async fn known_poses_come_back() {
     let (status, v) = post(&c, &url, &json!({"landmarks": pts, "method": "fit"})).await;
     assert_eq!(status, StatusCode::OK, "{v}");
     assert_pose(&v, (30.0, -12.0, 8.0), 0.5);
+    // 2D-style landmarks (hidden jaw points on the outline) are accepted too.
+    let (status, v) = post(
+        &c,
+        &url,
+        &json!({"landmarks": face68(20.0, 0.0, 0.0), "method": "fit", "landmark_style": "contour"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_pose(&v, (20.0, 0.0, 0.0), 1.0);
     // Camera intrinsics add the face's position.
     let (status, v) = post(
         &c,
@@ -435,6 +444,11 @@ async fn bad_input_says_what_to_fix() {
             json!({"landmarks": ok, "methd": "fit"}),
             422,
             "unknown field `methd`",
+        ),
+        (
+            json!({"landmarks": ok, "landmark_style": "sketch"}),
+            422,
+            "unknown landmark style \"sketch\"",
         ),
         (
             json!({"scheme": "ibug68"}),

@@ -8,10 +8,10 @@
 //! 3. robust: iteratively reweighted with Tukey's biweight on the residuals (scale from the
 //!    median absolute residual, floored at 1% of the face size), so one or two wild points stop
 //!    pulling;
-//! 4. HPR-aware: points that the visibility map calls hidden at the current estimate get weight
-//!    zero, and the fit is redone until the visible set settles. Contour points (the jaw of
-//!    ibug68) that are visible keep a weight of `contour_weight`: in 2D annotations they follow
-//!    the silhouette rather than a fixed 3D point.
+//! 4. HPR-aware ([`Hidden`]): points that the visibility map calls hidden at the current
+//!    estimate get weight zero (all of them, or only the contour points, the jaw of ibug68, which
+//!    2D-style annotations put on the visible outline instead of their 3D place), and the fit is
+//!    redone until the visible set settles. Visible contour points weigh `contour_weight`.
 
 use nalgebra::{Matrix2x3, Matrix3, Matrix6, Rotation3, Vector2, Vector3, Vector6};
 
@@ -19,13 +19,28 @@ use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
 use crate::shape::Shape2;
 
+/// What the fit does with points hidden at its estimate (HPR on the shape, through a
+/// visibility map over the same points).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Hidden {
+    /// Keep them: every landmark is the projection of its 3D point, seen or not (3D-style
+    /// annotations and 3DMM fits: AFLW2000-3D, 3DDFA, FAN-3D).
+    #[default]
+    Keep,
+    /// Drop hidden contour points only: 2D-style annotations (300-W, dlib, FAN-2D) put them on
+    /// the visible outline.
+    DropContour,
+    /// Drop every hidden point.
+    DropAll,
+}
+
 /// Options of [`fit_rigid`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FitOptions {
     /// Tukey reweighting against wild points.
     pub robust: bool,
-    /// Drop points hidden at the estimate (needs a visibility map).
-    pub hpr_aware: bool,
+    /// Points hidden at the estimate (used only with a visibility map).
+    pub hidden: Hidden,
     /// Weight of visible contour points relative to the others.
     pub contour_weight: f64,
     /// Levenberg-Marquardt iterations per weighting round.
@@ -36,7 +51,7 @@ impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
             robust: true,
-            hpr_aware: true,
+            hidden: Hidden::Keep,
             contour_weight: 1.0,
             iterations: 8,
         }
@@ -99,15 +114,17 @@ pub fn fit_rigid(
 
     // HPR: drop the points hidden at the estimate, refit until the visible set settles.
     let mut hidden: Option<&[bool]> = None;
-    if let (true, Some(map)) = (opts.hpr_aware, visibility) {
-        for _ in 0..2 {
+    let map = visibility.filter(|m| opts.hidden != Hidden::Keep && m.n_points() == n);
+    if let Some(map) = map {
+        for _ in 0..3 {
             let now = map.lookup(&r);
             if hidden == Some(now) {
                 break;
             }
             hidden = Some(now);
             for i in 0..n {
-                weights[i] = if now[i] { base[i] } else { 0.0 };
+                let droppable = opts.hidden == Hidden::DropAll || contour.contains(&i);
+                weights[i] = if now[i] || !droppable { base[i] } else { 0.0 };
             }
             if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
                 weights.clone_from(&base);

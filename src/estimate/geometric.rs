@@ -15,7 +15,10 @@
 //! when yaw and pitch combine the eye line tilts in the image without any roll. Both follow
 //! from the pose, so the method iterates: estimate, predict the axis length and the eye-line
 //! tilt at that pose, correct, estimate again. On the mean shape's own projections it is then
-//! exact (tests), which the paper's fixed normalization is not beyond ~20° of pitch.
+//! exact within ±45° of yaw and pitch at any roll (tests), which the paper's fixed
+//! normalization is not beyond ~20° of pitch. Past about 50° of yaw and pitch together, the
+//! few measurements the method uses (one axis, one nose offset, the eye line's direction) fit
+//! a second pose too, and the iteration may settle on it: the method's range is the paper's.
 //!
 //! `L_f`, `l_n` and the tilt come from a mean 3D shape ([`GeometryConstants::from_mean`]); the
 //! paper reports 0.45 and 0.50 for its database.
@@ -236,10 +239,11 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// The mean's own projections come back exactly over ±50° of yaw and pitch, any roll
-        /// (the paper's fixed normalization is off by 20° at 40° of pitch).
+        /// The mean's own projections come back exactly over ±45° of yaw and pitch, any roll
+        /// (the paper's fixed normalization is off by 20° at 40° of pitch). Beyond about 50° of
+        /// both at once the five points fit a second pose as well (see the module docs).
         #[test]
-        fn exact_on_the_mean_shape(yaw in -50.0f64..50.0, pitch in -50.0f64..50.0, roll in -60.0f64..60.0) {
+        fn exact_on_the_mean_shape(yaw in -45.0f64..45.0, pitch in -45.0f64..45.0, roll in -60.0f64..60.0) {
             let c = GeometryConstants::from_mean(&five3()).unwrap();
             let truth = EulerAngles::new(yaw, pitch, roll).unwrap();
             let e = estimate_geometric(&view(truth), &c).unwrap();

@@ -12,7 +12,7 @@ pub mod pipeline;
 pub mod regression;
 pub mod visibility_map;
 
-pub use fit::{FitOptions, RigidFit, fit_rigid};
+pub use fit::{FitOptions, Hidden, RigidFit, fit_rigid};
 pub use perspective::Intrinsics;
-pub use pipeline::{Estimate, EstimateOptions, Method, estimate, estimate_with};
+pub use pipeline::{Estimate, EstimateOptions, LandmarkStyle, Method, estimate, estimate_with};
 pub use visibility_map::VisibilityMap;

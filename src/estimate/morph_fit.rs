@@ -16,7 +16,7 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector2, Vector3};
 
-use super::fit::{FitOptions, RigidFit, fit_rigid, model_size, tukey_reweight};
+use super::fit::{FitOptions, Hidden, RigidFit, fit_rigid, model_size, tukey_reweight};
 use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
 use crate::shape::Shape2;
@@ -177,10 +177,7 @@ pub struct MorphOptions {
 impl Default for MorphOptions {
     fn default() -> Self {
         MorphOptions {
-            rigid: FitOptions {
-                hpr_aware: false,
-                ..FitOptions::default()
-            },
+            rigid: FitOptions::default(),
             iterations: 1,
             noise_mm: 1.0,
         }
@@ -244,16 +241,17 @@ pub fn fit_morphable(
             true => 1.0,
         })
         .collect();
-    if let (true, Some(map)) = (opts.rigid.hpr_aware, visibility) {
+    let droppable = |i: usize| opts.rigid.hidden == Hidden::DropAll || contour.contains(&i);
+    if let Some(map) =
+        visibility.filter(|m| opts.rigid.hidden != Hidden::Keep && m.n_points() == w.len())
+    {
         let visible = map.lookup(&start.rotation);
-        let kept = w
-            .iter()
-            .zip(visible)
-            .filter(|(w, v)| **w > 0.0 && **v)
+        let kept = (0..w.len())
+            .filter(|&i| w[i] > 0.0 && (visible[i] || !droppable(i)))
             .count();
         if kept >= 4 {
-            for (wi, v) in w.iter_mut().zip(visible) {
-                if !v {
+            for (i, wi) in w.iter_mut().enumerate() {
+                if !visible[i] && droppable(i) {
                     *wi = 0.0;
                 }
             }

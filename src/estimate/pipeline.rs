@@ -7,13 +7,13 @@ use std::str::FromStr;
 use nalgebra::{Rotation3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::fit::{FitOptions, fit_rigid};
+use super::fit::{FitOptions, Hidden, fit_rigid};
 use super::geometric::estimate_geometric;
 use super::morph_fit::{MorphOptions, fit_morphable};
 use super::perspective::{Intrinsics, refine_perspective};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
-use crate::model::{PoseModel, SubsetMap};
+use crate::model::{PoseModel, Subset, SubsetMap};
 use crate::shape::Shape2;
 
 /// The estimators.
@@ -37,13 +37,16 @@ impl Method {
     /// Every method name, for messages.
     pub const NAMES: [&'static str; 5] = ["auto", "fit", "fit-shape", "regression", "geometry"];
 
-    /// The method `auto` stands for, given the model, the input scheme and how many points are
-    /// present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most accurate with
-    /// many points, the rigid fit with five.
-    pub fn resolve(self, model: &PoseModel, scheme: &str, present: usize) -> Method {
+    /// The method `auto` stands for, given the model, the subset the input is in and how many
+    /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
+    /// accurate on 68 and 51 points, the rigid fit on five (anchor means, which the shape fit
+    /// does not take).
+    pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
         match self {
             Method::Auto
-                if model.morph.is_some() && scheme == model.scheme.name && present >= 20 =>
+                if model.morph.is_some()
+                    && subset.map != SubsetMap::Anchors
+                    && present >= MIN_SHAPE_FIT_POINTS =>
             {
                 Method::FitShape
             }
@@ -86,6 +89,10 @@ impl FromStr for Method {
     }
 }
 
+/// Fewest present points for `auto` to choose the shape fit: below, the prior decides most of
+/// the shape and the rigid fit is as good.
+pub const MIN_SHAPE_FIT_POINTS: usize = 12;
+
 /// A pose estimate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
@@ -103,12 +110,49 @@ pub struct Estimate {
     pub translation: Option<Vector3<f64>>,
 }
 
+/// How the landmarks were made, which decides what hidden points mean.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LandmarkStyle {
+    /// Every landmark is the projection of its 3D point, seen or not (3D-style: 3DMM fits,
+    /// AFLW2000-3D, 3DDFA, FAN-3D). Hidden points still pull.
+    #[default]
+    Projected,
+    /// 2D-style (300-W, dlib, FAN-2D): contour points (the jaw) hidden at the pose sit on the
+    /// visible outline, so the fit methods leave them out (HPR at the estimate).
+    Contour,
+}
+
+impl LandmarkStyle {
+    /// Every style name, for messages.
+    pub const NAMES: [&'static str; 2] = ["projected", "contour"];
+}
+
+impl FromStr for LandmarkStyle {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "projected" => Ok(LandmarkStyle::Projected),
+            "contour" => Ok(LandmarkStyle::Contour),
+            _ => Err(Error::param(
+                "landmark_style",
+                format!(
+                    "unknown landmark style {s:?} (known: {})",
+                    LandmarkStyle::NAMES.join(", ")
+                ),
+            )),
+        }
+    }
+}
+
 /// How to estimate.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EstimateOptions {
     pub method: Method,
     /// Pinhole intrinsics: the fit methods then refine the pose under full perspective.
     pub camera: Option<Intrinsics>,
+    /// How the landmarks were made (the fit methods' use of hidden contour points).
+    pub style: LandmarkStyle,
 }
 
 /// Estimates the pose of `landmarks` (image pixels) given in `scheme` with `method`.
@@ -124,7 +168,7 @@ pub fn estimate(
         landmarks,
         &EstimateOptions {
             method,
-            camera: None,
+            ..EstimateOptions::default()
         },
     )
 }
@@ -151,7 +195,7 @@ pub fn estimate_with(
         });
     }
     let present = landmarks.n_present();
-    let method = method.resolve(model, scheme, present);
+    let method = method.resolve(model, subset, present);
     let map = &subset.map;
     let contour = &subset.scheme.contour;
     if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
@@ -162,20 +206,21 @@ pub fn estimate_with(
             ),
         ));
     }
+    let fit_options = FitOptions {
+        hidden: match opts.style {
+            LandmarkStyle::Projected => Hidden::Keep,
+            LandmarkStyle::Contour => Hidden::DropContour,
+        },
+        ..FitOptions::default()
+    };
     // The fit methods keep their shape and camera for the perspective refinement.
     let mut fitted: Option<(Vec<Vector3<f64>>, super::fit::RigidFit)> = None;
     let rotation = match method {
         Method::Fit => {
-            let f = fit_rigid(
-                &subset.mean,
-                landmarks,
-                contour,
-                None,
-                FitOptions {
-                    hpr_aware: false,
-                    ..FitOptions::default()
-                },
-            )?;
+            // The visibility map is over the model's own points; subsets without contour
+            // points have nothing to drop.
+            let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
+            let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
             let r = f.rotation;
             fitted = Some((subset.mean.clone(), f));
             r
@@ -191,12 +236,16 @@ pub fn estimate_with(
                 morph,
                 &full,
                 &model.scheme.contour,
-                None,
-                MorphOptions::default(),
+                Some(&model.visibility),
+                MorphOptions {
+                    rigid: fit_options,
+                    ..MorphOptions::default()
+                },
             )?;
             let r = f.camera.rotation;
             let shape = subset.map.map_points(&model.scheme, &f.shape);
             let weights = match &subset.map {
+                SubsetMap::Own => f.camera.weights.clone(),
                 SubsetMap::Indices(idx) => idx.iter().map(|&i| f.camera.weights[i]).collect(),
                 SubsetMap::Anchors => vec![1.0; subset.scheme.len()],
             };
@@ -222,7 +271,7 @@ pub fn estimate_with(
         Method::Geometry => {
             let five = match map {
                 SubsetMap::Anchors => landmarks.clone(),
-                SubsetMap::Indices(_) => landmarks.to_five(&subset.scheme)?,
+                SubsetMap::Own | SubsetMap::Indices(_) => landmarks.to_five(&subset.scheme)?,
             };
             estimate_geometric(&five, &model.geometry)?.to_rotation()
         }
@@ -260,7 +309,9 @@ pub fn estimate_with(
 }
 
 /// The RMS reprojection error at the best scale and translation for a fixed rotation, over the
-/// projected distance between the eye centres.
+/// projected distance between the eye centres. One pass of sums, no allocation:
+/// with `q = (R X)ₓᵧ`, the least-squares scale is `s = cov(q, y) / var(q)` and the residual
+/// energy `Σ|y - ȳ|² - s² Σ|q - q̄|²`.
 fn residual(
     mean: &[Vector3<f64>],
     lm: &Shape2,
@@ -268,23 +319,29 @@ fn residual(
     eye_l: &[usize],
     eye_r: &[usize],
 ) -> f64 {
-    let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = lm
-        .iter_present()
-        .map(|(i, p)| ((r * mean[i]).xy(), Vector2::new(p.x, -p.y)))
-        .collect();
-    let n = pairs.len() as f64;
-    let cq = pairs.iter().map(|(q, _)| q).sum::<Vector2<f64>>() / n;
-    let cy = pairs.iter().map(|(_, y)| y).sum::<Vector2<f64>>() / n;
-    let (mut num, mut den) = (0.0, 0.0);
-    for (q, y) in &pairs {
-        num += (q - cq).dot(&(y - cy));
-        den += (q - cq).norm_squared();
+    // Sums taken relative to the first present point, so that image coordinates far from the
+    // origin do not cancel away the residual.
+    let Some((i0, p0)) = lm.iter_present().next() else {
+        return f64::INFINITY;
+    };
+    let (q0, y0) = ((r * mean[i0]).xy(), Vector2::new(p0.x, -p0.y));
+    let (mut n, mut sq, mut sy) = (0.0, Vector2::zeros(), Vector2::zeros());
+    let (mut qq, mut yy, mut qy) = (0.0, 0.0, 0.0);
+    for (i, p) in lm.iter_present() {
+        let q = (r * mean[i]).xy() - q0;
+        let y = Vector2::new(p.x, -p.y) - y0;
+        n += 1.0;
+        sq += q;
+        sy += y;
+        qq += q.norm_squared();
+        yy += y.norm_squared();
+        qy += q.dot(&y);
     }
+    let den = qq - sq.norm_squared() / n;
+    let num = qy - sq.dot(&sy) / n;
+    let var_y = yy - sy.norm_squared() / n;
     let s = if den > 0.0 { num / den } else { 0.0 };
-    let sse: f64 = pairs
-        .iter()
-        .map(|(q, y)| (s * (q - cq) + cy - y).norm_squared())
-        .sum();
+    let sse = (var_y - s * num).max(0.0);
     let eye = |idx: &[usize]| {
         idx.iter().map(|&i| mean[i]).sum::<Vector3<f64>>() / idx.len().max(1) as f64
     };
@@ -293,5 +350,58 @@ fn residual(
         (sse / n).sqrt() / iod
     } else {
         f64::INFINITY
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::WeakPerspective;
+
+    fn face() -> Vec<Vector3<f64>> {
+        vec![
+            Vector3::new(-32.0, 35.0, 0.0),
+            Vector3::new(32.0, 35.0, 0.0),
+            Vector3::new(0.0, 0.0, 40.0),
+            Vector3::new(-25.0, -30.0, 8.0),
+            Vector3::new(25.0, -30.0, 8.0),
+            Vector3::new(0.0, -70.0, 10.0),
+        ]
+    }
+
+    #[test]
+    fn residual_is_rms_error_over_eye_distance() {
+        let r = EulerAngles::new(20.0, -10.0, 5.0).unwrap().to_rotation();
+        let cam = WeakPerspective::new(r, 2.0, Vector2::new(300.0, -200.0)).unwrap();
+        let exact = Shape2::full(face().iter().map(|x| cam.project(x)).collect()).unwrap();
+        assert!(residual(&face(), &exact, &r, &[0], &[1]) < 1e-9);
+        // Move the chin 3 px down: the best scale and shift spread it, so compare with a
+        // direct least-squares fit of scale and translation.
+        let mut pts: Vec<Vector2<f64>> = exact.points().to_vec();
+        pts[5].y += 3.0;
+        let moved = Shape2::full(pts.clone()).unwrap();
+        let q: Vec<Vector2<f64>> = face().iter().map(|x| (r * x).xy()).collect();
+        let y: Vec<Vector2<f64>> = pts.iter().map(|p| Vector2::new(p.x, -p.y)).collect();
+        let (qm, ym) = (
+            q.iter().sum::<Vector2<f64>>() / 6.0,
+            y.iter().sum::<Vector2<f64>>() / 6.0,
+        );
+        let s = q
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (a - qm).dot(&(b - ym)))
+            .sum::<f64>()
+            / q.iter().map(|a| (a - qm).norm_squared()).sum::<f64>();
+        let rms = (q
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (s * (a - qm) + ym - b).norm_squared())
+            .sum::<f64>()
+            / 6.0)
+            .sqrt();
+        let iod = s * (q[1] - q[0]).norm();
+        let got = residual(&face(), &moved, &r, &[0], &[1]);
+        assert!((got - rms / iod).abs() < 1e-12, "{got} vs {}", rms / iod);
+        assert!(got > 0.0);
     }
 }

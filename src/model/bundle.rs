@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::train::{TrainOptions, subset_of, training_bins};
+use super::train::{TrainOptions, map_bins, subset_of, synthesize_bins};
 use super::{PoseModel, Subset};
 use crate::error::Error;
 use crate::estimate::geometric::GeometryConstants;
@@ -258,11 +258,12 @@ impl Bundle {
             return Err(invalid("geometry", "lf and ln must be finite, ln positive"));
         }
         let mut subsets = Vec::new();
+        let own_bins = synthesize_bins(&mean, &hpr, &self.training.regression)
+            .map_err(core("training.regression"))?;
         for (k, entry) in self.regressions.iter().enumerate() {
             let field = format!("regressions[{k}]");
             let (scheme, map) = subset_of(&self.scheme, &entry.scheme).map_err(core(&field))?;
-            let bins = training_bins(&self.scheme, &map, &mean, &hpr, &self.training.regression)
-                .map_err(core(&field))?;
+            let bins = map_bins(&own_bins, &self.scheme, &map);
             if entry.matrices.len() != bins.len() {
                 return Err(invalid(
                     format!("{field}.matrices"),

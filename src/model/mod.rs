@@ -27,6 +27,8 @@ pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_p
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SubsetMap {
+    /// The model's own scheme: point `k` is point `k`.
+    Own,
     /// Point `k` of the subset is point `indices[k]` of the model.
     Indices(Vec<usize>),
     /// The subset is `five`: each point is the mean of one anchor's points.
@@ -37,6 +39,7 @@ impl SubsetMap {
     /// The subset's 3D points from the model's.
     pub fn map_points(&self, scheme: &Scheme, pts: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         match self {
+            SubsetMap::Own => pts.to_vec(),
             SubsetMap::Indices(idx) => idx.iter().map(|&i| pts[i]).collect(),
             SubsetMap::Anchors => scheme
                 .anchors
@@ -51,6 +54,11 @@ impl SubsetMap {
     /// hidden when all its points are); allocation-free.
     pub fn hidden_into(&self, scheme: &Scheme, vis: &[bool], out: &mut [bool]) {
         match self {
+            SubsetMap::Own => {
+                for (o, &v) in out.iter_mut().zip(vis) {
+                    *o = !v;
+                }
+            }
             SubsetMap::Indices(idx) => {
                 for (o, &i) in out.iter_mut().zip(idx) {
                     *o = !vis[i];
@@ -67,6 +75,7 @@ impl SubsetMap {
     /// The subset's visibility from the model's: an anchor is visible if any of its points is.
     pub fn map_visibility(&self, scheme: &Scheme, vis: &[bool]) -> Vec<bool> {
         match self {
+            SubsetMap::Own => vis.to_vec(),
             SubsetMap::Indices(idx) => idx.iter().map(|&i| vis[i]).collect(),
             SubsetMap::Anchors => scheme
                 .anchors
@@ -124,6 +133,7 @@ impl PoseModel {
     /// The model's landmarks expanded from a subset's (missing where the subset has no point).
     pub fn expand(&self, subset: &Subset, shape: &Shape2) -> Option<Shape2> {
         match &subset.map {
+            SubsetMap::Own => Some(shape.clone()),
             SubsetMap::Indices(idx) => {
                 let mut pts = vec![None; self.scheme.len()];
                 for (k, &i) in idx.iter().enumerate() {

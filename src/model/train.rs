@@ -138,10 +138,11 @@ pub fn train(
     let mut subsets = Vec::new();
     let mut names = vec![scheme.name.clone()];
     names.extend(opts.subsets.iter().cloned());
+    let own_bins = synthesize_bins(&mean, &hpr, &opts.regression)?;
     for name in names {
         let (sub_scheme, map) = subset_of(scheme, &name)?;
         let sub_mean = map.map_points(scheme, &mean);
-        let bins = training_bins(scheme, &map, &mean, &hpr, &opts.regression)?;
+        let bins = map_bins(&own_bins, scheme, &map);
         let eyes = (
             sub_scheme.anchors.eye_left.clone(),
             sub_scheme.anchors.eye_right.clone(),
@@ -217,10 +218,7 @@ pub fn train_from_population(
 /// The sub-scheme called `name` of `scheme` and how its points map.
 pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     if name == scheme.name {
-        return Ok((
-            scheme.clone(),
-            SubsetMap::Indices((0..scheme.len()).collect()),
-        ));
+        return Ok((scheme.clone(), SubsetMap::Own));
     }
     match (scheme.name.as_str(), name) {
         (_, "five") => Ok((five(), SubsetMap::Anchors)),
@@ -235,9 +233,10 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     }
 }
 
-pub(crate) fn training_bins(
-    scheme: &Scheme,
-    map: &SubsetMap,
+/// The training views of the model's own scheme over the coarse grid and the fine bins:
+/// projections of the frontal mean with HPR visibility. Subsets take theirs from these with
+/// [`map_bins`] rather than synthesizing again.
+pub(crate) fn synthesize_bins(
     mean: &[Vector3<f64>],
     hpr: &PaperHpr,
     p: &RegressionParams,
@@ -252,24 +251,46 @@ pub(crate) fn training_bins(
                 .views(&grid)
                 .map(|v| {
                     let v = v?;
-                    let pts: Vec<Vector3<f64>> = v
-                        .projected
-                        .iter()
-                        .map(|q| Vector3::new(q.x, q.y, 0.0))
-                        .collect();
-                    let points = map
-                        .map_points(scheme, &pts)
-                        .iter()
-                        .map(|q| [q.x, q.y])
-                        .collect();
                     Ok(TrainingView {
                         angles: v.angles,
-                        points,
-                        visible: map.map_visibility(scheme, &v.visible),
+                        points: v.projected.iter().map(|q| [q.x, q.y]).collect(),
+                        visible: v.visible,
                     })
                 })
                 .collect::<Result<Vec<_>>>()?;
             Ok(ViewBin { grid, views })
+        })
+        .collect()
+}
+
+/// A subset's training views from the model scheme's.
+pub(crate) fn map_bins(bins: &[ViewBin], scheme: &Scheme, map: &SubsetMap) -> Vec<ViewBin> {
+    if *map == SubsetMap::Own {
+        return bins.to_vec();
+    }
+    bins.iter()
+        .map(|b| ViewBin {
+            grid: b.grid,
+            views: b
+                .views
+                .iter()
+                .map(|v| {
+                    let pts: Vec<Vector3<f64>> = v
+                        .points
+                        .iter()
+                        .map(|q| Vector3::new(q[0], q[1], 0.0))
+                        .collect();
+                    TrainingView {
+                        angles: v.angles,
+                        points: map
+                            .map_points(scheme, &pts)
+                            .iter()
+                            .map(|q| [q.x, q.y])
+                            .collect(),
+                        visible: map.map_visibility(scheme, &v.visible),
+                    }
+                })
+                .collect(),
         })
         .collect()
 }

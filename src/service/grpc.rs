@@ -60,6 +60,7 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
             cx: c.cx,
             cy: c.cy,
         }),
+        style: Some(face.landmark_style.as_str()),
     }
 }
 

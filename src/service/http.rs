@@ -106,6 +106,11 @@ pub struct PoseRequest {
     /// Camera intrinsics: the fit methods then refine the pose under full perspective.
     #[serde(default)]
     pub camera: Option<Camera>,
+    /// How the landmarks were made: `projected` (default: every landmark is its 3D point's
+    /// projection, as 3D-style annotations and 3DMM fitters give) or `contour` (2D-style, as
+    /// 300-W / dlib: hidden jaw points sit on the visible outline and the fit leaves them out).
+    #[serde(default)]
+    pub landmark_style: Option<String>,
     /// Echoed in the response.
     #[serde(default)]
     pub id: Option<FaceId>,
@@ -138,6 +143,8 @@ pub struct BatchFace {
     #[serde(default)]
     pub camera: Option<Camera>,
     #[serde(default)]
+    pub landmark_style: Option<String>,
+    #[serde(default)]
     pub id: Option<FaceId>,
 }
 
@@ -153,6 +160,8 @@ pub struct BatchRequest {
     pub method: Option<String>,
     #[serde(default)]
     pub camera: Option<Camera>,
+    #[serde(default)]
+    pub landmark_style: Option<String>,
     /// One model for the whole batch; default: `default`.
     #[serde(default)]
     pub model: Option<String>,
@@ -479,6 +488,7 @@ pub async fn pose(
             scheme: req.scheme.as_deref(),
             method: req.method.as_deref(),
             camera: req.camera.map(Into::into),
+            style: req.landmark_style.as_deref(),
         },
     );
     let mut tally = FaceTally::default();
@@ -538,6 +548,10 @@ pub async fn pose_batch(
                 scheme: face.scheme.as_deref().or(req.scheme.as_deref()),
                 method: face.method.as_deref().or(req.method.as_deref()),
                 camera: face.camera.or(req.camera).map(Into::into),
+                style: face
+                    .landmark_style
+                    .as_deref()
+                    .or(req.landmark_style.as_deref()),
             };
             match estimate_face(model, &spec) {
                 Ok(p) => {

@@ -8,7 +8,7 @@ use super::errors::ApiError;
 use super::registry::ServedModel;
 use nalgebra::Rotation3;
 
-use crate::estimate::{EstimateOptions, Intrinsics, Method, estimate_with};
+use crate::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
 use crate::record::{PoseRecord, shape_from_points};
 
 /// One face as a transport hands it over. Empty strings mean "not given".
@@ -18,6 +18,8 @@ pub struct FaceSpec<'a> {
     pub scheme: Option<&'a str>,
     pub method: Option<&'a str>,
     pub camera: Option<Intrinsics>,
+    /// `projected` (default) or `contour`: see [`LandmarkStyle`].
+    pub style: Option<&'a str>,
 }
 
 /// An estimate as the transports send it, with the rotation for stream smoothing and the
@@ -48,6 +50,10 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
             model.name
         )));
     }
+    let style: LandmarkStyle = match given(face.style) {
+        Some(s) => s.parse()?,
+        None => LandmarkStyle::default(),
+    };
     let shape = shape_from_points(face.landmarks)?;
     let estimate = estimate_with(
         &model.model,
@@ -56,6 +62,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         &EstimateOptions {
             method,
             camera: face.camera,
+            style,
         },
     )?;
     let rotation = estimate.rotation;

@@ -289,5 +289,6 @@ pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> 
         method: method.into(),
         camera: None,
         id: id.into(),
+        landmark_style: String::new(),
     }
 }

@@ -1,9 +1,13 @@
 //! A bounded cache of per-pattern results: the key is a view bin, a ridge parameter and a
 //! missing-point pattern (a bit set, inline up to 256 points, so lookups do not allocate).
-//! Readers share a lock; when full, the oldest entry goes.
+//! Readers share a lock; when full, the oldest entry goes. Keys are hashed with FxHash, which
+//! is fast on the query path; a client choosing patterns that collide gains nothing a new
+//! pattern's solve (milliseconds) does not already cost, and the map stays small.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::sync::{Arc, RwLock};
+
+use rustc_hash::FxHashMap;
 
 /// A missing-point pattern as a bit set.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
@@ -43,7 +47,7 @@ pub(super) struct Key {
 }
 
 /// The entries and their insertion order.
-type Entries<T> = (HashMap<Key, Arc<T>>, VecDeque<Key>);
+type Entries<T> = (FxHashMap<Key, Arc<T>>, VecDeque<Key>);
 
 /// A bounded map from [`Key`] to shared values.
 #[derive(Debug)]
@@ -56,7 +60,7 @@ impl<T> BoundedCache<T> {
     pub(super) fn new(limit: usize) -> Self {
         BoundedCache {
             limit: limit.max(1),
-            inner: RwLock::new((HashMap::new(), VecDeque::new())),
+            inner: RwLock::new((FxHashMap::default(), VecDeque::new())),
         }
     }
 

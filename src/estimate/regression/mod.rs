@@ -274,15 +274,19 @@ impl RegressionModel {
             return Ok(s);
         }
         let d = 2 * self.n_points + 1;
-        let mut ff = DMatrix::<f64>::zeros(d, d);
-        let mut tf = DMatrix::<f64>::zeros(3, d);
+        let views = &self.bins[b].views;
+        // The feature vectors as the columns of F and the targets as the columns of T; the
+        // statistics are then two matrix products (blocked and vectorized), far faster than
+        // one rank-one update per view.
+        let mut f_all = DMatrix::<f64>::zeros(d, views.len());
+        let mut t_all = DMatrix::<f64>::zeros(3, views.len());
         let mut used = 0;
         let mut mask = vec![false; self.n_points];
         let mut pts = vec![Vector2::zeros(); self.n_points];
         // The eye line of a training view comes from all its projected eye points, as a client
         // that sends both eyes gives it.
         let all = vec![false; self.n_points];
-        for v in &self.bins[b].views {
+        for v in views {
             for i in 0..self.n_points {
                 mask[i] = missing[i] || !v.visible[i];
                 pts[i] = Vector2::new(v.points[i][0], v.points[i][1]);
@@ -290,10 +294,10 @@ impl RegressionModel {
             let Some((phi, f)) = self.features(&pts, &all, &mask) else {
                 continue;
             };
-            ff.syger(1.0, &f, &f, 1.0);
-            let target =
-                nalgebra::Vector3::new(v.angles.yaw, v.angles.pitch, wrap180(v.angles.roll - phi));
-            tf.ger(1.0, &target, &f, 1.0);
+            f_all.column_mut(used).copy_from(&f);
+            t_all[(0, used)] = v.angles.yaw;
+            t_all[(1, used)] = v.angles.pitch;
+            t_all[(2, used)] = wrap180(v.angles.roll - phi);
             used += 1;
         }
         if used < 3 {
@@ -303,7 +307,9 @@ impl RegressionModel {
                 used,
             ));
         }
-        ff.fill_upper_triangle_with_lower_triangle();
+        let f_used = f_all.columns(0, used);
+        let ff = f_used * f_used.transpose();
+        let tf = t_all.columns(0, used) * f_used.transpose();
         let stats = Arc::new(Stats { ff, tf, used });
         self.stats_cache.insert(key, stats.clone());
         Ok(stats)
@@ -395,39 +401,36 @@ impl RegressionModel {
         Ok(())
     }
 
-    /// Applies a solution to de-rolled points (`derolled[i]`, ignored where `missing`): the
-    /// query is centred and energy-normalized over its present points on the fly, exactly as
-    /// [`Self::features`] builds training vectors.
-    fn apply(sol: &Solution, derolled: &[[f64; 2]], missing: &[bool]) -> Option<RollFree> {
+    /// Applies a solution to de-rolled points (`derolled[i]`, zero where `missing`; `present`
+    /// of them): the query is centred and energy-normalized over its present points on the
+    /// fly, exactly as [`Self::features`] builds training vectors. Zeroed points add nothing to
+    /// any sum, so the loop needs no branch.
+    fn apply(sol: &Solution, derolled: &[[f64; 2]], present: usize) -> Option<RollFree> {
+        if present < 2 {
+            return None;
+        }
         let ws = sol.w.as_slice();
-        let (mut k, mut sx, mut sy, mut sq) = (0usize, 0.0, 0.0, 0.0);
+        let n = derolled.len();
+        let (mut sx, mut sy, mut sq) = (0.0, 0.0, 0.0);
         let mut dot = [0.0; 3];
-        for (i, (p, &m)) in derolled.iter().zip(missing).enumerate() {
-            if m {
-                continue;
-            }
+        for (p, wi) in derolled.iter().zip(ws.chunks_exact(6)) {
             let [x, y] = *p;
-            let wi = &ws[6 * i..6 * i + 6];
             dot[0] += wi[0] * x + wi[3] * y;
             dot[1] += wi[1] * x + wi[4] * y;
             dot[2] += wi[2] * x + wi[5] * y;
             sx += x;
             sy += y;
             sq += x * x + y * y;
-            k += 1;
         }
-        if k < 2 {
-            return None;
-        }
-        let (cx, cy) = (sx / k as f64, sy / k as f64);
-        let norm2 = sq - k as f64 * (cx * cx + cy * cy);
+        let k = present as f64;
+        let (cx, cy) = (sx / k, sy / k);
+        let norm2 = sq - k * (cx * cx + cy * cy);
         // Relative to the points' spread from the origin, so that a shape far from the image
         // origin is not called degenerate by rounding.
         if norm2.is_nan() || norm2 <= 1e-18 * sq.max(1e-300) {
             return None;
         }
         let inv = 1.0 / norm2.sqrt();
-        let n = missing.len();
         let out: [f64; 3] = std::array::from_fn(|j| {
             (dot[j] - cx * sol.sum_x[j] - cy * sol.sum_y[j]) * inv + ws[6 * n + j]
         });
@@ -500,32 +503,46 @@ impl RegressionModel {
         }
         let phi = self.eye_line(points, missing).ok_or_else(degenerate)?;
         let (s, c) = phi.sin_cos();
-        for (d, p) in derolled.iter_mut().zip(points) {
-            *d = [c * p.x + s * p.y, -s * p.x + c * p.y];
+        let mut present = 0;
+        for ((d, p), &m) in derolled.iter_mut().zip(points).zip(missing.iter()) {
+            *d = if m {
+                [0.0; 2]
+            } else {
+                present += 1;
+                [c * p.x + s * p.y, -s * p.x + c * p.y]
+            };
         }
-        // Coarse pass on bin 0, then the fine bin that holds it.
-        let coarse = Self::apply(&*self.solution(0, missing, epsilon)?, derolled, missing)
+        // Coarse pass on bin 0: it picks the fine bin and the points hidden at its pose (HPR),
+        // which join the missing ones for the fine pass (when enough points stay).
+        let coarse = Self::apply(&*self.solution(0, missing, epsilon)?, derolled, present)
             .ok_or_else(degenerate)?;
         let bin = self.pick_bin(coarse.yaw, coarse.pitch);
-        let mut first = coarse;
-        if bin != 0 {
-            first = Self::apply(&*self.solution(bin, missing, epsilon)?, derolled, missing)
-                .ok_or_else(degenerate)?;
-        }
-        // Points hidden at the first estimate join the missing ones for a second pass.
-        hidden_at(first.yaw, first.pitch, hidden);
-        let mut grew = false;
-        for (m, h) in missing.iter_mut().zip(hidden.iter()) {
-            if *h && !*m {
-                *m = true;
-                grew = true;
+        hidden_at(coarse.yaw, coarse.pitch, hidden);
+        let newly = hidden
+            .iter()
+            .zip(missing.iter())
+            .filter(|(h, m)| **h && !**m)
+            .count();
+        let grows = newly > 0 && present - newly >= 3;
+        if grows {
+            for ((m, d), &h) in missing
+                .iter_mut()
+                .zip(derolled.iter_mut())
+                .zip(hidden.iter())
+            {
+                if h && !*m {
+                    *m = true;
+                    *d = [0.0; 2];
+                }
             }
+            present -= newly;
         }
-        let mut result = first;
-        if grew && missing.iter().filter(|m| !**m).count() >= 3 {
-            result = Self::apply(&*self.solution(bin, missing, epsilon)?, derolled, missing)
-                .ok_or_else(degenerate)?;
-        }
+        let result = if bin == 0 && !grows {
+            coarse
+        } else {
+            Self::apply(&*self.solution(bin, missing, epsilon)?, derolled, present)
+                .ok_or_else(degenerate)?
+        };
         Ok(RegressionEstimate {
             rotation: compose(phi.to_degrees() + result.delta, result.pitch, result.yaw),
             bin,
@@ -576,19 +593,14 @@ thread_local! {
 /// turned in the image plane by the regression's residual; undoing the de-roll turns it by the
 /// eye-line angle more (angles in degrees, the convention's matrices).
 fn compose(in_plane: f64, pitch: f64, yaw: f64) -> Rotation3<f64> {
-    let roll_free = EulerAngles {
-        yaw,
-        pitch,
-        roll: 0.0,
-    }
-    .to_rotation();
-    let turn = EulerAngles {
-        yaw: 0.0,
-        pitch: 0.0,
-        roll: in_plane,
-    }
-    .to_rotation();
-    turn * roll_free
+    let (sz, cz) = in_plane.to_radians().sin_cos();
+    let (sx, cx) = pitch.to_radians().sin_cos();
+    let (sy, cy) = yaw.to_radians().sin_cos();
+    // Rx(pitch) Ry(yaw) = [[cy, 0, -sy], [sx sy, cx, sx cy], [cx sy, -sx, cx cy]], then
+    // Rz(in_plane) = [[cz, sz, 0], [-sz, cz, 0], [0, 0, 1]] on the left.
+    let m = nalgebra::Matrix3::new(cy, 0.0, -sy, sx * sy, cx, sx * cy, cx * sy, -sx, cx * cy);
+    let rz = nalgebra::Matrix3::new(cz, sz, 0.0, -sz, cz, 0.0, 0.0, 0.0, 1.0);
+    Rotation3::from_matrix_unchecked(rz * m)
 }
 
 fn check_epsilon(epsilon: f64) -> Result<()> {
