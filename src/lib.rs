@@ -11,6 +11,8 @@ pub mod eval;
 pub mod geometry;
 pub mod hpr;
 pub mod model;
+pub mod record;
+pub mod service;
 pub mod sfm;
 pub mod shape;
 pub mod synth;

@@ -16,6 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Serve HTTP JSON and gRPC on one port (the long-running service).
+    Serve(facepose::service::config::ServeArgs),
     /// Estimate head pose from landmarks (JSON Lines or CSV) to JSON Lines.
     Estimate(cli::estimate::EstimateArgs),
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
@@ -33,6 +35,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Serve(a) => cli::serve::run(a),
         Command::Estimate(a) => cli::estimate::run(a),
         Command::Hpr(a) => cli::hpr::run(a),
         Command::Reconstruct(a) => cli::reconstruct::run(a),

@@ -139,7 +139,12 @@ fn bad_lines_give_error_records_and_the_run_goes_on() {
     assert_eq!(code, 0);
     assert_eq!(out.len(), 6);
     assert!(out[0]["error"].as_str().unwrap().contains("JSON"));
-    assert!(out[1]["error"].as_str().unwrap().contains("has 1 points"));
+    assert!(
+        out[1]["error"]
+            .as_str()
+            .unwrap()
+            .contains("expected 68 points, got 1")
+    );
     assert!(out[2]["error"].as_str().unwrap().contains("landmark 0"));
     assert!(out[3]["error"].as_str().unwrap().contains("degenerate"));
     assert!(out[4]["error"].as_str().unwrap().contains("points"));

@@ -8,8 +8,9 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 use facepose::estimate::{Method, estimate};
-use facepose::geometry::rotation_rows;
+use facepose::record::{Landmarks, PoseRecord, shape_from_points};
 use facepose::shape::Shape2;
+use serde::Deserialize;
 use serde_json::{Value, json};
 
 use super::CliError;
@@ -92,18 +93,14 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                 }
                 parse_csv(&line, n, csv_has_id)
             }
-            _ => parse_jsonl(&line, n),
+            _ => parse_jsonl(&line),
         };
         let result = parsed.and_then(|shape| {
             estimate(&model, &a.scheme, &shape, method).map_err(|e| e.to_string())
         });
         let value = match result {
             Ok(e) => {
-                let mut v = json!({
-                    "yaw": e.angles.yaw, "pitch": e.angles.pitch, "roll": e.angles.roll,
-                    "rotation": rotation_rows(&e.rotation), "method": e.method.to_string(),
-                    "visible": e.visible, "residual": e.residual,
-                });
+                let mut v = serde_json::to_value(PoseRecord::from(&e))?;
                 if let Some(id) = id {
                     v.as_object_mut().map(|o| o.insert("id".into(), id));
                 }
@@ -135,7 +132,9 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
 }
 
 /// One JSON Lines record: `{"landmarks": [[x, y] | null, ...], "id": ...}`.
-fn parse_jsonl(line: &str, n: usize) -> (Option<Value>, Result<Shape2, String>) {
+/// The landmarks are parsed by [`Landmarks`] (shared with the service); their count is checked
+/// against the scheme by the estimator.
+fn parse_jsonl(line: &str) -> (Option<Value>, Result<Shape2, String>) {
     let v: Value = match serde_json::from_str(line) {
         Ok(v) => v,
         Err(e) => return (None, Err(format!("not valid JSON: {e}"))),
@@ -147,32 +146,12 @@ fn parse_jsonl(line: &str, n: usize) -> (Option<Value>, Result<Shape2, String>) 
             Err(format!("\"id\" must be a string or a number, got {bad}")),
         );
     }
-    let shape = (|| {
-        let lm = v
-            .get("landmarks")
-            .ok_or("missing \"landmarks\"")?
-            .as_array()
-            .ok_or("\"landmarks\" must be an array")?;
-        if lm.len() != n {
-            return Err(format!(
-                "\"landmarks\" has {} points, the scheme has {n}",
-                lm.len()
-            ));
-        }
-        let pts = lm
-            .iter()
-            .enumerate()
-            .map(|(i, p)| match p {
-                Value::Null => Ok(None),
-                Value::Array(xy) if xy.len() == 2 => match (xy[0].as_f64(), xy[1].as_f64()) {
-                    (Some(x), Some(y)) => Ok(Some([x, y])),
-                    _ => Err(format!("landmark {i} must be [x, y] numbers or null")),
-                },
-                _ => Err(format!("landmark {i} must be [x, y] numbers or null")),
-            })
-            .collect::<Result<Vec<_>, String>>()?;
-        Shape2::from_options(&pts).map_err(|e| e.to_string())
-    })();
+    let shape = match v.get("landmarks") {
+        None => Err("missing \"landmarks\"".to_string()),
+        Some(lm) => Landmarks::deserialize(lm)
+            .map_err(|e| format!("\"landmarks\": {e}"))
+            .and_then(|l| l.to_shape().map_err(|e| e.to_string())),
+    };
     (id, shape)
 }
 
@@ -212,6 +191,6 @@ fn parse_csv(
         .collect::<Result<Vec<_>, String>>();
     (
         id,
-        pts.and_then(|p| Shape2::from_options(&p).map_err(|e| e.to_string())),
+        pts.and_then(|p| shape_from_points(&p).map_err(|e| e.to_string())),
     )
 }

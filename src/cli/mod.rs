@@ -5,6 +5,7 @@ pub mod eval;
 pub mod eval_sfm;
 pub mod hpr;
 pub mod reconstruct;
+pub mod serve;
 pub mod train;
 
 /// An error of a subcommand, printed with its context chain.

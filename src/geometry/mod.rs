@@ -1,8 +1,10 @@
-//! Rotations, the angle convention, projection and Procrustes alignment.
+//! Rotations, the angle convention, projection, Procrustes alignment and temporal smoothing of
+//! rotations.
 
 pub mod convention;
 pub mod procrustes;
 pub mod projection;
+pub mod smoothing;
 
 pub use convention::{EulerAngles, geodesic_deg, rotation_from_rows, rotation_rows};
 pub use procrustes::{Scaling, Similarity2, Similarity3, align2, align3, generalized_procrustes};

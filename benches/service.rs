@@ -1,0 +1,93 @@
+//! The service's per-face work on one core, without the network: parse a JSON body, estimate,
+//! serialize the response; decode a gRPC request. With docs/PERFORMANCE.md's load figures it
+//! says where a request's time goes.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use facepose::geometry::{EulerAngles, WeakPerspective};
+use facepose::model::SubsetMap;
+use facepose::service::http::{BatchRequest, PoseRequest, parse_json};
+use facepose::service::pose::{FaceSpec, estimate_face};
+use facepose::service::proto;
+use facepose::service::registry::load_models;
+use nalgebra::Vector2;
+use prost::Message;
+use serde_json::json;
+use std::hint::black_box;
+
+fn face(n68: bool) -> Vec<[f64; 2]> {
+    let (_, model) = facepose::model::default_model().unwrap();
+    let cam = WeakPerspective::new(
+        EulerAngles::new(25.0, -10.0, 5.0).unwrap().to_rotation(),
+        1.8,
+        Vector2::new(225.7, -225.3),
+    )
+    .unwrap();
+    let pts = if n68 {
+        model.mean.clone()
+    } else {
+        SubsetMap::Anchors.map_points(&model.scheme, &model.mean)
+    };
+    pts.iter()
+        .map(|x| {
+            let p = cam.project(x);
+            // Full-precision coordinates, as a client computing in doubles sends them.
+            [p.x + 0.123456789, p.y - 0.987654321]
+        })
+        .collect()
+}
+
+fn service(c: &mut Criterion) {
+    let set = load_models(None).unwrap();
+    let model = set.get(None).unwrap().clone();
+    for (name, scheme, pts) in [("68", "ibug68", face(true)), ("five", "five", face(false))] {
+        let body = json!({"landmarks": pts, "scheme": scheme, "method": "fit"}).to_string();
+        c.bench_function(&format!("http/parse one face/{name}"), |b| {
+            b.iter(|| parse_json::<PoseRequest>(black_box(body.as_bytes())).unwrap())
+        });
+        let req: PoseRequest = parse_json(body.as_bytes()).unwrap();
+        let spec = FaceSpec {
+            landmarks: &req.landmarks.0,
+            scheme: req.scheme.as_deref(),
+            method: req.method.as_deref(),
+            camera: None,
+            style: None,
+        };
+        c.bench_function(&format!("estimate_face fit/{name}"), |b| {
+            b.iter(|| estimate_face(&model, black_box(&spec)).unwrap())
+        });
+        let p = estimate_face(&model, &spec).unwrap();
+        c.bench_function(&format!("http/serialize one pose/{name}"), |b| {
+            b.iter(|| serde_json::to_vec(black_box(&p.record)).unwrap())
+        });
+        let batch =
+            json!({"faces": vec![json!({"landmarks": pts}); 100], "scheme": scheme}).to_string();
+        c.bench_function(&format!("http/parse batch of 100/{name}"), |b| {
+            b.iter(|| parse_json::<BatchRequest>(black_box(batch.as_bytes())).unwrap())
+        });
+        let grpc = proto::EstimateRequest {
+            face: Some(proto::Face {
+                landmarks: pts
+                    .iter()
+                    .map(|p| proto::Landmark {
+                        x: p[0],
+                        y: p[1],
+                        missing: false,
+                    })
+                    .collect(),
+                scheme: scheme.into(),
+                method: "fit".into(),
+                camera: None,
+                id: String::new(),
+                landmark_style: String::new(),
+            }),
+            model: String::new(),
+        }
+        .encode_to_vec();
+        c.bench_function(&format!("grpc/decode one face/{name}"), |b| {
+            b.iter(|| proto::EstimateRequest::decode(black_box(grpc.as_slice())).unwrap())
+        });
+    }
+}
+
+criterion_group!(benches, service);
+criterion_main!(benches);

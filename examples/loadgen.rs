@@ -1,0 +1,261 @@
+//! Load generator for `facepose serve` (used by scripts/loadtest.sh; not installed with the
+//! crate):
+//!
+//! - `loadgen stream`: gRPC `EstimateStream` load: S streams, each sending frames of F faces
+//!   and keeping up to W frames in flight; prints poses/s and per-frame latency percentiles.
+//! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
+//!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
+//!
+//! Faces are the default model's mean shape projected at varied poses with 1 px of landmark
+//! noise (seeded), 68 points (`ibug68`) or five (`five`).
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use facepose::geometry::{EulerAngles, WeakPerspective};
+use facepose::model::{SubsetMap, default_model};
+use facepose::service::proto;
+use nalgebra::Vector2;
+use prost::Message;
+use rand::{Rng, SeedableRng, rngs::StdRng};
+use serde_json::json;
+use tokio_stream::StreamExt;
+
+struct Args {
+    cmd: String,
+    addr: String,
+    streams: usize,
+    faces: usize,
+    window: usize,
+    duration: Duration,
+    scheme: String,
+    method: String,
+    batch: usize,
+    dir: String,
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        cmd: String::new(),
+        addr: "http://127.0.0.1:8080".into(),
+        streams: 8,
+        faces: 4,
+        window: 8,
+        duration: Duration::from_secs(10),
+        scheme: "ibug68".into(),
+        method: "fit".into(),
+        batch: 1000,
+        dir: ".".into(),
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let mut v = || it.next().unwrap_or_else(|| panic!("{k} needs a value"));
+        match k.as_str() {
+            "--addr" => a.addr = v(),
+            "--streams" => a.streams = v().parse().expect("--streams N"),
+            "--faces" => a.faces = v().parse().expect("--faces N"),
+            "--window" => a.window = v().parse().expect("--window N"),
+            "--duration" => {
+                a.duration = Duration::from_secs_f64(v().parse().expect("--duration seconds"))
+            }
+            "--scheme" => a.scheme = v(),
+            "--method" => a.method = v(),
+            "--batch" => a.batch = v().parse().expect("--batch N"),
+            c if a.cmd.is_empty() => a.cmd = c.to_string(),
+            d if a.cmd == "bodies" => a.dir = d.to_string(),
+            other => panic!("unknown argument {other}"),
+        }
+    }
+    a
+}
+
+/// `n` faces in `scheme`, image pixels.
+fn faces(n: usize, scheme: &str, seed: u64) -> Vec<Vec<[f64; 2]>> {
+    let (_, model) = default_model().expect("default model");
+    let mut rng = StdRng::seed_from_u64(seed);
+    let points = match scheme {
+        "five" => SubsetMap::Anchors.map_points(&model.scheme, &model.mean),
+        _ => model.mean.clone(),
+    };
+    (0..n)
+        .map(|_| {
+            let a = EulerAngles::new(
+                rng.random_range(-60.0..60.0),
+                rng.random_range(-25.0..25.0),
+                rng.random_range(-20.0..20.0),
+            )
+            .expect("finite angles");
+            let cam = WeakPerspective::new(a.to_rotation(), 2.0, Vector2::new(320.0, -240.0))
+                .expect("camera");
+            points
+                .iter()
+                .map(|x| {
+                    let p = cam.project(x);
+                    [
+                        p.x + rng.random_range(-1.0..1.0),
+                        p.y + rng.random_range(-1.0..1.0),
+                    ]
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
+    proto::Face {
+        landmarks: points
+            .iter()
+            .map(|p| proto::Landmark {
+                x: p[0],
+                y: p[1],
+                missing: false,
+            })
+            .collect(),
+        scheme: a.scheme.clone(),
+        method: a.method.clone(),
+        camera: None,
+        id: String::new(),
+        landmark_style: String::new(),
+    }
+}
+
+fn bodies(a: &Args) {
+    let dir = std::path::Path::new(&a.dir);
+    std::fs::create_dir_all(dir).expect("bodies dir");
+    let one = &faces(1, &a.scheme, 1)[0];
+    let single = json!({"landmarks": one, "scheme": a.scheme, "method": a.method});
+    std::fs::write(dir.join("pose.json"), single.to_string()).expect("write");
+    let batch: Vec<_> = faces(a.batch, &a.scheme, 2)
+        .into_iter()
+        .map(|f| json!({ "landmarks": f }))
+        .collect();
+    let batch = json!({"faces": batch, "scheme": a.scheme, "method": a.method});
+    std::fs::write(dir.join("batch.json"), batch.to_string()).expect("write");
+    // gRPC framing: compressed flag 0, big-endian length, message.
+    let req = proto::EstimateRequest {
+        face: Some(proto_face(one, a)),
+        model: String::new(),
+    }
+    .encode_to_vec();
+    let mut framed = vec![0u8];
+    framed.extend_from_slice(&(req.len() as u32).to_be_bytes());
+    framed.extend_from_slice(&req);
+    std::fs::write(dir.join("estimate.grpc"), framed).expect("write");
+    println!(
+        "wrote pose.json, batch.json ({} faces), estimate.grpc to {}",
+        a.batch,
+        dir.display()
+    );
+}
+
+/// One stream: returns (poses, per-frame latencies).
+async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
+    let mut client = proto::pose_service_client::PoseServiceClient::connect(a.addr.clone())
+        .await
+        .expect("connect");
+    let pool: Vec<proto::Frame> = faces(64 * a.faces, &a.scheme, seed)
+        .chunks(a.faces)
+        .enumerate()
+        .map(|(k, fs)| proto::Frame {
+            frame_id: k as u64,
+            timestamp_us: 0,
+            faces: fs.iter().map(|f| proto_face(f, a)).collect(),
+            model: String::new(),
+            smoothing: None,
+        })
+        .collect();
+    let (tx, rx) = tokio::sync::mpsc::channel::<proto::Frame>(a.window.max(1));
+    let mut out = client
+        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .expect("stream")
+        .into_inner();
+    let mut sent: VecDeque<Instant> = VecDeque::new();
+    let mut lat = Vec::new();
+    let mut poses = 0u64;
+    let mut k = 0usize;
+    loop {
+        while sent.len() < a.window && Instant::now() < until {
+            let mut f = pool[k % pool.len()].clone();
+            f.frame_id = k as u64;
+            k += 1;
+            sent.push_back(Instant::now());
+            if tx.send(f).await.is_err() {
+                break;
+            }
+        }
+        if sent.is_empty() {
+            break;
+        }
+        match out.next().await {
+            Some(Ok(r)) => {
+                let t0 = sent.pop_front().expect("a frame in flight");
+                lat.push(t0.elapsed());
+                poses += r
+                    .faces
+                    .iter()
+                    .filter(|f| matches!(f.result, Some(proto::face_result::Result::Pose(_))))
+                    .count() as u64;
+            }
+            Some(Err(e)) => panic!("stream error: {e}"),
+            None => break,
+        }
+    }
+    (poses, lat)
+}
+
+async fn stream(a: Args) {
+    let a = std::sync::Arc::new(a);
+    // Warm up: connections, and the server's first requests.
+    let warm = Instant::now() + Duration::from_millis(500);
+    one_stream(&a, 99, warm).await;
+    let start = Instant::now();
+    let until = start + a.duration;
+    let tasks: Vec<_> = (0..a.streams)
+        .map(|s| {
+            let a = a.clone();
+            tokio::spawn(async move { one_stream(&a, s as u64, until).await })
+        })
+        .collect();
+    let mut poses = 0;
+    let mut lat = Vec::new();
+    for t in tasks {
+        let (p, l) = t.await.expect("stream task");
+        poses += p;
+        lat.extend(l);
+    }
+    let secs = start.elapsed().as_secs_f64();
+    lat.sort();
+    let pct = |q: f64| {
+        lat.get(((lat.len() as f64 * q) as usize).min(lat.len().saturating_sub(1)))
+            .map_or(0.0, |d| d.as_secs_f64() * 1e3)
+    };
+    println!(
+        "streams {} faces/frame {} window {} scheme {} method {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
+        a.streams,
+        a.faces,
+        a.window,
+        a.scheme,
+        a.method,
+        poses as f64 / secs,
+        lat.len() as f64 / secs,
+        pct(0.5),
+        pct(0.99)
+    );
+}
+
+fn main() {
+    let a = parse_args();
+    match a.cmd.as_str() {
+        "bodies" => bodies(&a),
+        "stream" => tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .expect("runtime")
+            .block_on(stream(a)),
+        _ => eprintln!(
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]"
+        ),
+    }
+}

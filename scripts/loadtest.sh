@@ -1,0 +1,179 @@
+#!/usr/bin/env bash
+# Load benchmark of `facepose serve` on this machine; writes docs/PERFORMANCE.md.
+#
+#   scripts/loadtest.sh                 # 10 s per run
+#   DURATION=20 scripts/loadtest.sh     # longer runs
+#
+# Installs wrk and h2load (Debian nghttp2-client) if missing, builds the release binary and our
+# gRPC stream load generator (examples/loadgen.rs), starts the server on a free loopback port,
+# and measures: time to ready, resident memory, /healthz, then for each workload (scheme:method)
+# one pose (HTTP), a batch (HTTP), gRPC unary (h2load with a pre-encoded frame) and gRPC streams
+# (loadgen). Load generators run on the same machine and share its cores with the server.
+# docs/performance-notes.md, if present, is appended (the analysis). Not part of CI.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+DURATION=${DURATION:-10}
+CONNS=${CONNS:-16}
+# ibug68 is the main scheme (68 points, 2.5 kB of JSON a face); five is what face detectors
+# (RetinaFace, SCRFD) give.
+WORKLOADS=${WORKLOADS:-"ibug68:fit five:fit"}
+BATCH=${BATCH:-1000}
+OUT=${OUT:-docs/PERFORMANCE.md}
+WORK=$(mktemp -d)
+PID=""
+trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
+
+need() { command -v "$1" >/dev/null 2>&1; }
+if ! need wrk || ! need h2load; then
+    echo "== installing wrk and nghttp2-client (h2load)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
+    $SUDO apt-get install -y wrk nghttp2-client >/dev/null 2>&1 ||
+        { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y wrk nghttp2-client >/dev/null; }
+fi
+
+echo "== building (release)"
+cargo build --release --locked --bin facepose --example loadgen 2>&1 | tail -1
+BIN=target/release/facepose
+LOADGEN=target/release/examples/loadgen
+for w in $WORKLOADS; do
+    "$LOADGEN" bodies "$WORK/$w" --scheme "${w%%:*}" --method "${w##*:}" --batch "$BATCH" >/dev/null
+done
+
+PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+BASE="http://127.0.0.1:$PORT"
+
+echo "== starting the server on $BASE"
+T0=$(date +%s%N)
+"$BIN" serve --addr "127.0.0.1:$PORT" --log warn &
+PID=$!
+until curl -sf -o /dev/null "$BASE/readyz"; do
+    kill -0 "$PID" 2>/dev/null || { echo "server exited"; exit 1; }
+    sleep 0.002
+done
+READY_MS=$(( ($(date +%s%N) - T0) / 1000000 ))
+RSS_IDLE_KB=$(awk '/^VmRSS/ {print $2}' "/proc/$PID/status")
+echo "ready after ${READY_MS} ms, RSS ${RSS_IDLE_KB} kB"
+
+cat >"$WORK/post.lua" <<'LUA'
+wrk.method = "POST"
+wrk.headers["Content-Type"] = "application/json"
+local f = io.open(os.getenv("BODY"), "rb"); wrk.body = f:read("*a"); f:close()
+LUA
+
+cat >"$WORK/wrk.py" <<'PY'
+import re, sys
+t = open(sys.argv[1]).read()
+def ms(label):
+    m = re.search(r"^\s*%s\s+([\d.]+)(us|ms|s)\b" % label, t, re.M)
+    v, u = float(m.group(1)), m.group(2)
+    return v / 1000 if u == "us" else v * 1000 if u == "s" else v
+rps = float(re.search(r"Requests/sec:\s+([\d.]+)", t).group(1))
+bad = re.search(r"Non-2xx or 3xx responses: (\d+)", t)
+print(f"{rps:.0f} {ms('50%'):.3f} {ms('99%'):.3f} {int(bad.group(1)) if bad else 0}")
+PY
+
+cat >"$WORK/h2.py" <<'PY'
+import sys
+d = sorted(int(l.split()[2]) for l in open(sys.argv[1]) if l.strip())
+n = len(d)
+print(f"{n / float(sys.argv[2]):.0f} {d[n // 2] / 1000:.3f} {d[int(n * 0.99)] / 1000:.3f} {n}")
+PY
+
+# wrk: prints "<req/s> <p50 ms> <p99 ms> <non-2xx>"
+run_wrk() { # conns path [body]
+    local conns=$1 path=$2 body=${3:-}
+    local args=(-t1 -c"$conns" -d"${DURATION}s" --latency)
+    [ -n "$body" ] && args+=(-s "$WORK/post.lua")
+    BODY="$body" wrk "${args[@]}" "$BASE$path" >"$WORK/wrk.txt"
+    python3 "$WORK/wrk.py" "$WORK/wrk.txt"
+}
+
+pass() { python3 -c "print('met' if $1 else 'NOT met')"; }
+
+grpc_ok() {
+    curl -s "$BASE/metrics" | awk '/^facepose_grpc_requests_total\{rpc="Estimate",code="OK"\}/ {print $2}' | head -1
+}
+
+echo "== wrk /healthz"
+read -r H_RPS H_P50 H_P99 H_BAD < <(run_wrk "$CONNS" /healthz)
+TABLES=""
+for w in $WORKLOADS; do
+    SCHEME=${w%%:*}; METHOD=${w##*:}; D="$WORK/$w"
+    echo "== $w: wrk POST /v1/pose"
+    read -r P_RPS P_P50 P_P99 P_BAD < <(run_wrk "$CONNS" /v1/pose "$D/pose.json")
+    echo "== $w: wrk POST /v1/pose:batch ($BATCH faces)"
+    read -r B_RPS B_P50 B_P99 B_BAD < <(run_wrk 4 /v1/pose:batch "$D/batch.json")
+    echo "== $w: h2load gRPC Estimate"
+    OK0=$(grpc_ok); OK0=${OK0:-0}; rm -f "$WORK/h2.log"
+    h2load -D "$DURATION" -c 4 -m 16 -t 1 \
+        -H 'content-type: application/grpc' -H 'te: trailers' \
+        -d "$D/estimate.grpc" --log-file "$WORK/h2.log" \
+        "$BASE/facepose.v1.PoseService/Estimate" >"$WORK/h2.txt"
+    OK1=$(grpc_ok); OK1=${OK1:-0}
+    read -r G_RPS G_P50 G_P99 G_N < <(python3 "$WORK/h2.py" "$WORK/h2.log" "$DURATION")
+    G_OK=$(( ${OK1%.*} - ${OK0%.*} ))
+    echo "== $w: loadgen gRPC EstimateStream"
+    STREAM_LINE=$("$LOADGEN" stream --addr "$BASE" --streams 8 --faces 4 --window 8 \
+        --duration "$DURATION" --scheme "$SCHEME" --method "$METHOD")
+    S_PPS=$(echo "$STREAM_LINE" | sed -E 's/.*: ([0-9]+) poses\/s.*/\1/')
+    S_P50=$(echo "$STREAM_LINE" | sed -E 's/.*p50 ([0-9.]+) ms.*/\1/')
+    S_P99=$(echo "$STREAM_LINE" | sed -E 's/.*p99 ([0-9.]+) ms.*/\1/')
+    RATIO=$(python3 -c "print(f'{$P_RPS / $H_RPS * 100:.0f}')")
+    BATCH_PPS=$(python3 -c "print(f'{$B_RPS * $BATCH:.0f}')")
+    TABLES+="
+### Scheme \`$SCHEME\`, method \`$METHOD\`
+
+| what | load | throughput | p50 | p99 | target |
+|---|---|---|---|---|---|
+| \`POST /v1/pose\` | wrk, $CONNS connections | $P_RPS req/s (**${RATIO}%** of /healthz) | $P_P50 ms | $P_P99 ms | ≥ 80% of /healthz: $(pass "$P_RPS >= 0.8 * $H_RPS") |
+| \`POST /v1/pose:batch\`, $BATCH faces | wrk, 4 connections | $B_RPS req/s = **$BATCH_PPS poses/s** | $B_P50 ms | $B_P99 ms | ≥ 200k poses/s: $(pass "$BATCH_PPS >= 200000") |
+| gRPC \`Estimate\` | h2load, 4 connections × 16 streams | $G_RPS req/s ($G_OK OK, $G_N answered) | $G_P50 ms | $G_P99 ms | |
+| gRPC \`EstimateStream\` | loadgen, 8 streams, 4 faces/frame, 8 frames in flight | **$S_PPS poses/s** | $S_P50 ms / frame | $S_P99 ms / frame | ≥ 100k poses/s: $(pass "$S_PPS >= 100000") |
+
+Non-2xx HTTP responses: /v1/pose $P_BAD, batch $B_BAD.
+"
+done
+
+RSS_KB=$(awk '/^VmRSS/ {print $2}' "/proc/$PID/status")
+HWM_KB=$(awk '/^VmHWM/ {print $2}' "/proc/$PID/status")
+kill -TERM "$PID"; wait "$PID" || true; PID=""
+CPU=$(awk -F: '/model name/ {print $2; exit}' /proc/cpuinfo | sed 's/^ *//')
+
+{
+    cat <<DOC
+# Performance
+
+Measured by \`scripts/loadtest.sh\` (DURATION=$DURATION) on $(date -u +%Y-%m-%d): $(nproc) cores ($CPU),
+$(( $(awk '/MemTotal/ {print $2}' /proc/meminfo) / 1024 )) MiB, $(uname -sr). The load generators run on the same cores as the
+server, and the machine is shared with other work that was not stopped (load average at the end:
+$(cut -d' ' -f1-3 /proc/loadavg)): figures move by ±30% between runs. Faces: the default model's mean shape at random
+poses (yaw ±60°, pitch ±25°, roll ±20°) with 1 px of landmark noise, full-precision coordinates.
+Release build, default flags (\`facepose serve --log warn\`).
+
+| what | load | throughput | p50 | p99 | target |
+|---|---|---|---|---|---|
+| ready after start | \`facepose serve\` to the first 200 on /readyz | | ${READY_MS} ms | | ≤ 200 ms: $(pass "$READY_MS <= 200") |
+| \`GET /healthz\` | wrk, $CONNS connections | $H_RPS req/s | $H_P50 ms | $H_P99 ms | |
+| resident memory | after start / at the end / peak | | $((RSS_IDLE_KB / 1024)) MiB / $((RSS_KB / 1024)) MiB / $((HWM_KB / 1024)) MiB | | ≤ 64 MB: $(pass "$HWM_KB * 1024 <= 64000000") |
+$TABLES
+## Commands
+
+\`\`\`sh
+scripts/loadtest.sh      # DURATION=10 CONNS=16 BATCH=1000 WORKLOADS="ibug68:fit five:fit"
+# which runs, against target/release/facepose serve --addr 127.0.0.1:PORT --log warn:
+wrk -t1 -c$CONNS -d${DURATION}s --latency http://127.0.0.1:PORT/healthz
+wrk -t1 -c$CONNS -d${DURATION}s --latency -s post.lua http://127.0.0.1:PORT/v1/pose          # BODY=pose.json
+wrk -t1 -c4 -d${DURATION}s --latency -s post.lua http://127.0.0.1:PORT/v1/pose:batch         # BODY=batch.json
+h2load -D $DURATION -c 4 -m 16 -t 1 -H 'content-type: application/grpc' -H 'te: trailers' \\
+  -d estimate.grpc http://127.0.0.1:PORT/facepose.v1.PoseService/Estimate
+target/release/examples/loadgen stream --addr http://127.0.0.1:PORT --streams 8 --faces 4 --window 8 \\
+  --duration $DURATION --scheme SCHEME --method METHOD
+\`\`\`
+
+The bodies come from \`target/release/examples/loadgen bodies DIR --scheme SCHEME --method METHOD --batch $BATCH\`.
+DOC
+    if [ -f docs/performance-notes.md ]; then echo; cat docs/performance-notes.md; fi
+} >"$OUT"
+echo "== wrote $OUT"
+cat "$OUT"

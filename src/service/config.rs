@@ -1,0 +1,262 @@
+//! `facepose serve` configuration: flags, each with an environment variable, validated once at
+//! start into a [`Config`]. Precedence: flag > environment > default.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::{Args, ValueEnum};
+
+/// Log line format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum LogFormat {
+    /// Human-readable lines.
+    Text,
+    /// One JSON object per line (for log collectors).
+    Json,
+}
+
+/// The flags of `facepose serve`.
+#[derive(Debug, Clone, Args)]
+pub struct ServeArgs {
+    /// Address to listen on, HTTP and gRPC on the same port (port 0: any free port; the bound
+    /// address is logged as `listening addr=...`).
+    #[arg(long, env = "FACEPOSE_ADDR", default_value = "0.0.0.0:8080")]
+    pub addr: String,
+    /// Models folder: each subfolder with a model.json is a model named by its `name` field.
+    /// Default: ./models if it exists. Without a model named `default` there, the embedded
+    /// default model serves as `default`. A broken bundle stops the start with a message naming
+    /// the file and the field.
+    #[arg(long, env = "FACEPOSE_MODELS")]
+    pub models: Option<PathBuf>,
+    /// Most faces in one batch request (HTTP /v1/pose:batch, gRPC EstimateBatch) or one stream
+    /// frame.
+    #[arg(long, env = "FACEPOSE_MAX_BATCH", default_value_t = 1000)]
+    pub max_batch: usize,
+    /// Largest request body (HTTP) or message (gRPC), e.g. 8MiB, 512KiB, 1000000.
+    #[arg(long, env = "FACEPOSE_MAX_BODY", default_value = "8MiB")]
+    pub max_body: String,
+    /// Per-request time limit of the HTTP API and of gRPC unary calls, e.g. 10s, 500ms.
+    #[arg(long, env = "FACEPOSE_REQUEST_TIMEOUT", default_value = "10s")]
+    pub request_timeout: String,
+    /// Most requests of the HTTP API and gRPC unary calls in progress at once; above it they
+    /// are refused at once (HTTP 429, gRPC UNAVAILABLE) instead of queueing.
+    #[arg(long, env = "FACEPOSE_MAX_CONCURRENCY", default_value_t = 512)]
+    pub max_concurrency: usize,
+    /// Most open EstimateStream streams; above it new streams get UNAVAILABLE.
+    #[arg(long, env = "FACEPOSE_MAX_STREAMS", default_value_t = 1024)]
+    pub max_streams: usize,
+    /// On SIGTERM/SIGINT: how long in-flight requests may take to finish before the process
+    /// exits anyway, e.g. 10s.
+    #[arg(long, env = "FACEPOSE_DRAIN_TIMEOUT", default_value = "10s")]
+    pub drain_timeout: String,
+    /// Worker threads (default: the number of CPUs).
+    #[arg(long, env = "FACEPOSE_WORKERS")]
+    pub workers: Option<usize>,
+    #[arg(long, env = "FACEPOSE_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
+    /// Log filter (tracing EnvFilter syntax), e.g. info, debug, facepose=debug,warn.
+    #[arg(long, env = "FACEPOSE_LOG", default_value = "info")]
+    pub log: String,
+}
+
+/// The validated configuration.
+#[derive(Debug, Clone)]
+pub struct Config {
+    pub addr: SocketAddr,
+    pub models: Option<PathBuf>,
+    pub limits: Limits,
+    pub drain_timeout: Duration,
+    pub workers: usize,
+    pub log_format: LogFormat,
+    pub log: String,
+}
+
+/// The request limits, shared by both transports.
+#[derive(Debug, Clone, Copy)]
+pub struct Limits {
+    pub max_batch: usize,
+    pub max_body: usize,
+    pub request_timeout: Duration,
+    pub max_concurrency: usize,
+    pub max_streams: usize,
+}
+
+/// A flag or variable with an unusable value.
+#[derive(Debug, thiserror::Error)]
+#[error("--{flag}: {reason}")]
+pub struct ConfigError {
+    pub flag: &'static str,
+    pub reason: String,
+}
+
+fn bad(flag: &'static str, reason: impl Into<String>) -> ConfigError {
+    ConfigError {
+        flag,
+        reason: reason.into(),
+    }
+}
+
+impl ServeArgs {
+    /// Checks every value and returns the configuration.
+    pub fn validate(&self) -> Result<Config, ConfigError> {
+        let addr = self.addr.parse().map_err(|e| {
+            bad(
+                "addr",
+                format!("{:?} is not an IP:port address ({e})", self.addr),
+            )
+        })?;
+        let positive = |flag, v: usize| {
+            if v == 0 {
+                Err(bad(flag, "must be at least 1"))
+            } else {
+                Ok(v)
+            }
+        };
+        let limits = Limits {
+            max_batch: positive("max-batch", self.max_batch)?,
+            max_body: parse_size(&self.max_body).map_err(|r| bad("max-body", r))?,
+            request_timeout: parse_duration(&self.request_timeout)
+                .map_err(|r| bad("request-timeout", r))?,
+            max_concurrency: positive("max-concurrency", self.max_concurrency)?,
+            max_streams: positive("max-streams", self.max_streams)?,
+        };
+        if limits.max_body < 1024 {
+            return Err(bad("max-body", "must be at least 1KiB"));
+        }
+        if limits.request_timeout.is_zero() {
+            return Err(bad("request-timeout", "must be positive"));
+        }
+        let workers = match self.workers {
+            Some(w) => positive("workers", w)?,
+            None => std::thread::available_parallelism().map_or(2, |n| n.get()),
+        };
+        tracing_subscriber::EnvFilter::try_new(&self.log)
+            .map_err(|e| bad("log", format!("{:?}: {e}", self.log)))?;
+        Ok(Config {
+            addr,
+            models: self.models.clone(),
+            limits,
+            drain_timeout: parse_duration(&self.drain_timeout)
+                .map_err(|r| bad("drain-timeout", r))?,
+            workers,
+            log_format: self.log_format,
+            log: self.log.clone(),
+        })
+    }
+}
+
+/// `10s`, `500ms`, `1m`, `1.5s`; a bare number is seconds.
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    let t = s.trim();
+    let (num, unit) = split_unit(t);
+    let v: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?} is not a duration (e.g. 10s, 500ms, 1m)"))?;
+    let secs = match unit {
+        "" | "s" => v,
+        "ms" => v / 1e3,
+        "us" | "µs" => v / 1e6,
+        "m" | "min" => v * 60.0,
+        "h" => v * 3600.0,
+        _ => return Err(format!("{s:?}: unknown unit {unit:?} (use ms, s, m or h)")),
+    };
+    Duration::try_from_secs_f64(secs).map_err(|_| format!("{s:?} is not a non-negative duration"))
+}
+
+/// `8MiB`, `512KiB`, `1MB`, `1000000`; bytes.
+pub fn parse_size(s: &str) -> Result<usize, String> {
+    let t = s.trim();
+    let (num, unit) = split_unit(t);
+    let v: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?} is not a size (e.g. 8MiB, 512KiB, 1000000)"))?;
+    let mult = match unit.to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kb" => 1e3,
+        "kib" => 1024.0,
+        "m" | "mb" => 1e6,
+        "mib" => 1024.0 * 1024.0,
+        "g" | "gb" => 1e9,
+        "gib" => 1024.0 * 1024.0 * 1024.0,
+        _ => {
+            return Err(format!(
+                "{s:?}: unknown unit {unit:?} (use KiB, MiB or bytes)"
+            ));
+        }
+    };
+    let bytes = v * mult;
+    if !(bytes.is_finite() && bytes >= 0.0 && bytes <= (1u64 << 40) as f64) {
+        return Err(format!("{s:?} is out of range"));
+    }
+    Ok(bytes as usize)
+}
+
+fn split_unit(t: &str) -> (&str, &str) {
+    let i = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    (t[..i].trim(), t[i..].trim())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        serve: ServeArgs,
+    }
+
+    #[test]
+    fn defaults_parse_and_validate() {
+        let c = Cli::try_parse_from(["facepose"]).unwrap().serve;
+        // The environment may set FACEPOSE_* variables; the defaults must validate either way.
+        let cfg = c.validate().unwrap();
+        if std::env::var_os("FACEPOSE_ADDR").is_none() {
+            assert_eq!(cfg.addr, "0.0.0.0:8080".parse().unwrap());
+        }
+        if std::env::var_os("FACEPOSE_MAX_BATCH").is_none() {
+            assert_eq!(cfg.limits.max_batch, 1000);
+        }
+        if std::env::var_os("FACEPOSE_DRAIN_TIMEOUT").is_none() {
+            assert_eq!(cfg.drain_timeout, Duration::from_secs(10));
+        }
+        assert!(cfg.workers >= 1);
+    }
+
+    #[test]
+    fn bad_values_name_the_flag() {
+        let parse = |args: &[&str]| {
+            let mut v = vec!["facepose"];
+            v.extend_from_slice(args);
+            Cli::try_parse_from(v).unwrap().serve.validate()
+        };
+        for (args, want) in [
+            (&["--addr", "localhost"][..], "--addr"),
+            (&["--max-batch", "0"][..], "--max-batch"),
+            (&["--max-body", "lots"][..], "--max-body"),
+            (&["--request-timeout", "5 parsecs"][..], "--request-timeout"),
+            (&["--request-timeout", "0s"][..], "--request-timeout"),
+            (&["--log", "=="][..], "--log"),
+        ] {
+            let err = parse(args).unwrap_err().to_string();
+            assert!(err.starts_with(want), "{args:?}: {err}");
+        }
+    }
+
+    #[test]
+    fn units() {
+        assert_eq!(parse_duration("250ms").unwrap(), Duration::from_millis(250));
+        assert_eq!(parse_duration("1.5s").unwrap(), Duration::from_millis(1500));
+        assert_eq!(parse_duration("2m").unwrap(), Duration::from_secs(120));
+        assert_eq!(parse_duration("3").unwrap(), Duration::from_secs(3));
+        assert_eq!(parse_size("8MiB").unwrap(), 8 << 20);
+        assert_eq!(parse_size("512KiB").unwrap(), 512 << 10);
+        assert_eq!(parse_size("1000").unwrap(), 1000);
+        assert!(parse_size("-1").is_err());
+        assert!(parse_duration("-1s").is_err());
+    }
+}

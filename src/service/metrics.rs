@@ -1,0 +1,248 @@
+//! Prometheus metrics (`GET /metrics`), recorded through the `metrics` facade. Every label value
+//! comes from a fixed set (route templates, method names, status codes), so the number of series
+//! stays bounded whatever clients send.
+//!
+//! | metric | type | labels |
+//! |---|---|---|
+//! | `facepose_http_requests_total` | counter | `route`, `method`, `status` |
+//! | `facepose_http_request_duration_seconds` | histogram | `route`, `method` |
+//! | `facepose_grpc_requests_total` | counter | `rpc`, `code` |
+//! | `facepose_grpc_request_duration_seconds` | histogram | `rpc` (streams: per frame) |
+//! | `facepose_poses_total` | counter | `transport`, `method` (the estimator used) |
+//! | `facepose_estimate_errors_total` | counter | `transport`, `code` (per face) |
+//! | `facepose_streams_active` | gauge | |
+//! | `facepose_model_info` | gauge (1) | `name`, `version`, `checksum`, `default` |
+//! | `facepose_ready` | gauge | |
+
+use std::time::Duration;
+
+use metrics::{counter, describe_counter, describe_gauge, describe_histogram, gauge, histogram};
+use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
+
+use super::errors::ErrorKind;
+use super::registry::ModelSet;
+use crate::estimate::Method;
+
+/// Latency buckets, seconds: 50 µs to 10 s.
+const BUCKETS: [f64; 17] = [
+    5e-5, 1e-4, 2.5e-4, 5e-4, 1e-3, 2.5e-3, 5e-3, 1e-2, 2.5e-2, 5e-2, 0.1, 0.25, 0.5, 1.0, 2.5,
+    5.0, 10.0,
+];
+
+/// The exporter's handle: renders the text format.
+#[derive(Clone)]
+pub struct Metrics {
+    handle: PrometheusHandle,
+}
+
+impl std::fmt::Debug for Metrics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Metrics")
+    }
+}
+
+impl Metrics {
+    /// Installs the process-wide recorder (once per process; a second call renders an empty
+    /// registry) and describes the metrics.
+    pub fn install() -> Metrics {
+        let recorder = PrometheusBuilder::new()
+            .set_buckets(&BUCKETS)
+            .map(|b| b.build_recorder())
+            .unwrap_or_else(|_| PrometheusBuilder::new().build_recorder());
+        let handle = recorder.handle();
+        if metrics::set_global_recorder(recorder).is_err() {
+            tracing::warn!("a metrics recorder was already installed; /metrics will be empty");
+        }
+        describe_counter!(
+            "facepose_http_requests_total",
+            "HTTP requests by route template, method and status"
+        );
+        describe_histogram!(
+            "facepose_http_request_duration_seconds",
+            metrics::Unit::Seconds,
+            "HTTP request latency by route template and method"
+        );
+        describe_counter!(
+            "facepose_grpc_requests_total",
+            "gRPC calls by method and status code (streams: one per stream)"
+        );
+        describe_histogram!(
+            "facepose_grpc_request_duration_seconds",
+            metrics::Unit::Seconds,
+            "gRPC latency by method (EstimateStream: per frame)"
+        );
+        describe_counter!(
+            "facepose_poses_total",
+            "Faces estimated, by transport and estimator"
+        );
+        describe_counter!(
+            "facepose_estimate_errors_total",
+            "Faces that could not be estimated, by transport and error code"
+        );
+        describe_gauge!("facepose_streams_active", "Open EstimateStream streams");
+        describe_gauge!(
+            "facepose_model_info",
+            "Loaded models (value 1), with their version and checksum"
+        );
+        describe_gauge!("facepose_ready", "1 when serving, 0 when draining");
+        Metrics { handle }
+    }
+
+    /// The Prometheus text exposition.
+    pub fn render(&self) -> String {
+        self.handle.render()
+    }
+
+    /// Drains histogram samples into their buckets every few seconds, so that memory stays
+    /// flat between scrapes.
+    pub fn spawn_upkeep(&self) {
+        let handle = self.handle.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(5));
+            loop {
+                tick.tick().await;
+                handle.run_upkeep();
+            }
+        });
+    }
+}
+
+pub fn http_request(route: &'static str, method: &'static str, status: u16, elapsed: Duration) {
+    counter!("facepose_http_requests_total", "route" => route, "method" => method, "status" => status_label(status))
+        .increment(1);
+    histogram!("facepose_http_request_duration_seconds", "route" => route, "method" => method)
+        .record(elapsed.as_secs_f64());
+}
+
+pub fn grpc_request(rpc: &'static str, code: tonic::Code, elapsed: Option<Duration>) {
+    counter!("facepose_grpc_requests_total", "rpc" => rpc, "code" => grpc_code_label(code))
+        .increment(1);
+    if let Some(d) = elapsed {
+        grpc_latency(rpc, d);
+    }
+}
+
+pub fn grpc_latency(rpc: &'static str, elapsed: Duration) {
+    histogram!("facepose_grpc_request_duration_seconds", "rpc" => rpc)
+        .record(elapsed.as_secs_f64());
+}
+
+/// Per-face outcomes of one request, recorded at once.
+#[derive(Debug, Default)]
+pub struct FaceTally {
+    by_method: [u64; 5],
+    by_error: Vec<(ErrorKind, u64)>,
+}
+
+impl FaceTally {
+    pub fn ok(&mut self, m: Method) {
+        self.by_method[method_index(m)] += 1;
+    }
+
+    pub fn err(&mut self, k: ErrorKind) {
+        match self.by_error.iter_mut().find(|(e, _)| *e == k) {
+            Some((_, n)) => *n += 1,
+            None => self.by_error.push((k, 1)),
+        }
+    }
+
+    pub fn succeeded(&self) -> u64 {
+        self.by_method.iter().sum()
+    }
+
+    pub fn failed(&self) -> u64 {
+        self.by_error.iter().map(|(_, n)| n).sum()
+    }
+
+    pub fn record(&self, transport: &'static str) {
+        for (i, &n) in self.by_method.iter().enumerate() {
+            if n > 0 {
+                counter!("facepose_poses_total", "transport" => transport, "method" => Method::NAMES[i])
+                    .increment(n);
+            }
+        }
+        for &(k, n) in &self.by_error {
+            counter!("facepose_estimate_errors_total", "transport" => transport, "code" => k.name())
+                .increment(n);
+        }
+    }
+}
+
+fn method_index(m: Method) -> usize {
+    match m {
+        Method::Auto => 0,
+        Method::Fit => 1,
+        Method::FitShape => 2,
+        Method::Regression => 3,
+        Method::Geometry => 4,
+    }
+}
+
+pub fn stream_opened() {
+    gauge!("facepose_streams_active").increment(1.0);
+}
+
+pub fn stream_closed() {
+    gauge!("facepose_streams_active").decrement(1.0);
+}
+
+pub fn ready(on: bool) {
+    gauge!("facepose_ready").set(if on { 1.0 } else { 0.0 });
+}
+
+/// One `facepose_model_info` series per loaded model.
+pub fn models(set: &ModelSet) {
+    for m in set.iter() {
+        gauge!(
+            "facepose_model_info",
+            "name" => m.name.clone(),
+            "version" => m.version.clone(),
+            "checksum" => m.checksum.clone(),
+            "default" => if m.name == set.default_name() { "true" } else { "false" }
+        )
+        .set(1.0);
+    }
+}
+
+fn status_label(status: u16) -> &'static str {
+    match status {
+        200 => "200",
+        400 => "400",
+        404 => "404",
+        405 => "405",
+        413 => "413",
+        415 => "415",
+        422 => "422",
+        429 => "429",
+        500 => "500",
+        503 => "503",
+        s if s < 300 => "2xx",
+        s if s < 400 => "3xx",
+        s if s < 500 => "4xx",
+        _ => "5xx",
+    }
+}
+
+/// The standard upper-case code names.
+pub fn grpc_code_label(code: tonic::Code) -> &'static str {
+    use tonic::Code as C;
+    match code {
+        C::Ok => "OK",
+        C::Cancelled => "CANCELLED",
+        C::Unknown => "UNKNOWN",
+        C::InvalidArgument => "INVALID_ARGUMENT",
+        C::DeadlineExceeded => "DEADLINE_EXCEEDED",
+        C::NotFound => "NOT_FOUND",
+        C::AlreadyExists => "ALREADY_EXISTS",
+        C::PermissionDenied => "PERMISSION_DENIED",
+        C::ResourceExhausted => "RESOURCE_EXHAUSTED",
+        C::FailedPrecondition => "FAILED_PRECONDITION",
+        C::Aborted => "ABORTED",
+        C::OutOfRange => "OUT_OF_RANGE",
+        C::Unimplemented => "UNIMPLEMENTED",
+        C::Internal => "INTERNAL",
+        C::Unavailable => "UNAVAILABLE",
+        C::DataLoss => "DATA_LOSS",
+        C::Unauthenticated => "UNAUTHENTICATED",
+    }
+}

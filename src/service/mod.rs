@@ -1,0 +1,229 @@
+//! `facepose serve`: HTTP JSON (axum) and gRPC (tonic) on one port.
+//!
+//! [`run`] builds the runtime and calls [`serve`], which does three things: build the state
+//! (models, limits, lifecycle, metrics), build the routers (HTTP API, gRPC services, health,
+//! reflection, one fallback), and serve them on one listener until a signal drains it.
+//!
+//! The service converts between wire types and the core's types and nothing more: estimation,
+//! rotations and angle conventions are the core's (`estimate`, `geometry`).
+
+pub mod config;
+pub mod errors;
+pub mod grpc;
+pub mod health;
+pub mod http;
+pub mod metrics;
+pub mod pose;
+pub mod registry;
+pub mod shutdown;
+pub mod stream;
+
+/// The generated gRPC code of `proto/facepose/v1/pose.proto` (server and client).
+#[allow(clippy::all, missing_docs)]
+pub mod proto {
+    tonic::include_proto!("facepose.v1");
+
+    /// The encoded file descriptor set, for server reflection.
+    pub const FILE_DESCRIPTOR_SET: &[u8] =
+        include_bytes!(concat!(env!("OUT_DIR"), "/facepose_descriptor.bin"));
+}
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::Router;
+use axum::serve::ListenerExt;
+use tokio::net::TcpListener;
+use tokio::sync::Semaphore;
+use tower::ServiceExt;
+
+use config::{Config, Limits, LogFormat, ServeArgs};
+use registry::{Registry, RegistryError, load_models};
+use shutdown::Lifecycle;
+
+/// What the handlers of both transports share.
+#[derive(Debug)]
+pub struct AppState {
+    pub registry: Registry,
+    pub limits: Limits,
+    pub lifecycle: Lifecycle,
+    pub metrics: metrics::Metrics,
+    /// Requests of the HTTP API and gRPC unary calls in progress.
+    pub permits: Arc<Semaphore>,
+    /// Open streams.
+    pub streams: Arc<Semaphore>,
+    /// The OpenAPI document, rendered once.
+    pub openapi: String,
+}
+
+/// Why the service could not start or serve.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error(transparent)]
+    Config(#[from] config::ConfigError),
+    #[error(transparent)]
+    Models(#[from] RegistryError),
+    #[error("cannot listen on {addr}: {source}")]
+    Bind {
+        addr: std::net::SocketAddr,
+        source: std::io::Error,
+    },
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    #[error("reflection service: {0}")]
+    Reflection(String),
+}
+
+/// Validates the flags, starts logging and the runtime, and serves until SIGTERM/SIGINT.
+pub fn run(args: ServeArgs) -> Result<(), ServeError> {
+    let started = Instant::now();
+    tune_allocator();
+    let cfg = args.validate()?;
+    init_logging(&cfg);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(cfg.workers)
+        .max_blocking_threads(cfg.workers.max(2))
+        .thread_name("facepose")
+        .enable_all()
+        .build()?;
+    let result = runtime.block_on(serve(cfg, started));
+    // Blocking batch tasks cut off by the drain cap are not waited for.
+    runtime.shutdown_timeout(std::time::Duration::from_millis(100));
+    result
+}
+
+/// glibc's allocator keeps freed memory per thread arena and raises its mmap threshold to the
+/// largest block freed, so after a few megabyte-sized batch bodies the resident size stays at
+/// its peak. A fixed threshold returns large blocks to the system when freed, and two arenas
+/// bound the per-thread caches.
+fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only sets allocator parameters; it is called before the runtime starts
+    // any thread, as glibc recommends.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 256 * 1024);
+        libc::mallopt(libc::M_ARENA_MAX, 2);
+    }
+}
+
+fn init_logging(cfg: &Config) {
+    let filter = tracing_subscriber::EnvFilter::try_new(&cfg.log)
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = match cfg.log_format {
+        LogFormat::Json => builder.json().with_current_span(true).try_init(),
+        LogFormat::Text => builder
+            .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+            .try_init(),
+    };
+}
+
+/// The models folder: `--models`, else `./models` if it exists, else none (the embedded
+/// default model only).
+fn models_dir(flag: Option<&Path>) -> Option<PathBuf> {
+    match flag {
+        Some(d) => Some(d.to_path_buf()),
+        None => Some(PathBuf::from("models")).filter(|d| d.is_dir()),
+    }
+}
+
+/// Loads the models, binds, and serves HTTP and gRPC on one port until a signal, then drains.
+pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
+    // State.
+    let dir = models_dir(cfg.models.as_deref());
+    let set = tokio::task::spawn_blocking(move || load_models(dir.as_deref()))
+        .await
+        .map_err(|e| ServeError::Io(std::io::Error::other(e)))??;
+    let metrics = metrics::Metrics::install();
+    metrics.spawn_upkeep();
+    metrics::models(&set);
+    for m in set.iter() {
+        tracing::info!(name = %m.name, version = %m.version, source = %m.source, "model loaded");
+    }
+    let state = Arc::new(AppState {
+        registry: Registry::new(set),
+        limits: cfg.limits,
+        lifecycle: Lifecycle::default(),
+        metrics,
+        permits: Arc::new(Semaphore::new(cfg.limits.max_concurrency)),
+        streams: Arc::new(Semaphore::new(cfg.limits.max_streams)),
+        openapi: http::openapi_json(),
+    });
+
+    // Routers: gRPC from an empty axum router (tonic's default fallback would answer unknown
+    // REST paths with gRPC errors), merged with the HTTP API, one fallback for both.
+    let max_body = cfg.limits.max_body;
+    let pose =
+        proto::pose_service_server::PoseServiceServer::new(grpc::PoseApi::new(state.clone()))
+            .max_decoding_message_size(max_body);
+    fn reflection() -> tonic_reflection::server::Builder<'static> {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    }
+    let reflection_v1 = reflection()
+        .build_v1()
+        .map_err(|e| ServeError::Reflection(e.to_string()))?;
+    let reflection_v1alpha = reflection()
+        .build_v1alpha()
+        .map_err(|e| ServeError::Reflection(e.to_string()))?;
+    let grpc = tonic::service::Routes::from(Router::new())
+        .add_service(tonic_health::pb::health_server::HealthServer::new(
+            health::HealthApi::new(state.clone()),
+        ))
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
+        .into_axum_router()
+        .route_service(
+            &format!("/{}/{{*rest}}", health::POSE_SERVICE),
+            pose.map_request(|req: axum::http::Request<axum::body::Body>| {
+                req.map(tonic::body::Body::new)
+            })
+            .map_response(move |resp| grpc::remap_trailers_only(resp, max_body)),
+        );
+    let app = http::router(state.clone())
+        .merge(grpc)
+        .fallback(http::fallback)
+        .layer(axum::middleware::from_fn(http::observe));
+
+    // Serve.
+    let listener = TcpListener::bind(cfg.addr)
+        .await
+        .map_err(|source| ServeError::Bind {
+            addr: cfg.addr,
+            source,
+        })?;
+    let addr = listener.local_addr()?;
+    state.lifecycle.serving();
+    tracing::info!(
+        %addr,
+        startup_ms = started.elapsed().as_millis() as u64,
+        workers = cfg.workers,
+        "listening (HTTP and gRPC)"
+    );
+    let listener = listener.tap_io(|tcp| {
+        let _ = tcp.set_nodelay(true);
+    });
+    let drain_state = state.clone();
+    let server = axum::serve(listener, app).with_graceful_shutdown(async move {
+        let signal = shutdown::termination_signal().await;
+        tracing::info!(
+            signal,
+            "draining: not ready, no new connections, streams told to end"
+        );
+        drain_state.lifecycle.begin_drain();
+    });
+    let drained = state.lifecycle.drained();
+    let cap = cfg.drain_timeout;
+    tokio::select! {
+        result = server.into_future() => result?,
+        _ = async { drained.await; tokio::time::sleep(cap).await } => {
+            tracing::warn!(?cap, "drain timed out; closing the remaining connections");
+        }
+    }
+    tracing::info!("stopped");
+    Ok(())
+}
