@@ -9,6 +9,7 @@ pub mod basis;
 pub mod bundle;
 pub mod store;
 pub mod train;
+pub mod validate;
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
