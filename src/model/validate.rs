@@ -3,7 +3,7 @@
 //!
 //! Each shape is checked on its own first (cheap, O(points)):
 //! - **point count**: exactly the scheme's number of points;
-//! - **finite**: every coordinate a finite number;
+//! - **finite**: every coordinate a finite number, and within ±[`MAX_COORDINATE`];
 //! - **degenerate**: not all at one place, not on one line, not flat (a face has depth: the
 //!   smallest principal axis of its points is at least [`MIN_DEPTH_RATIO`] of the largest), the
 //!   eye centres apart and the mouth off the eye line;
@@ -45,6 +45,11 @@ use crate::shape::{Scheme, Shape2, Shape3};
 /// are about 0.35; points drawn on a plane are 0.
 pub const MIN_DEPTH_RATIO: f64 = 0.02;
 
+/// The largest coordinate accepted (3D: millimetres or the views' pixels; 2D: pixels). A face
+/// is a few hundred units across; far beyond that a value is a unit or encoding mistake, and
+/// squares of such values would overflow the alignment's sums.
+pub const MAX_COORDINATE: f64 = 1e9;
+
 /// Why a shape was dropped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -53,6 +58,8 @@ pub enum DropReason {
     PointCount,
     /// A coordinate is NaN or infinite.
     NonFinite,
+    /// A coordinate is beyond ±[`MAX_COORDINATE`].
+    OutOfRange,
     /// All points at one place, on a line or on a plane; eyes together; mouth on the eye line.
     Degenerate,
     /// A reflection of a face, not a face.
@@ -69,6 +76,7 @@ impl DropReason {
         match self {
             DropReason::PointCount => "point_count",
             DropReason::NonFinite => "non_finite",
+            DropReason::OutOfRange => "out_of_range",
             DropReason::Degenerate => "degenerate",
             DropReason::Mirrored => "mirrored",
             DropReason::Outlier => "outlier",
@@ -200,6 +208,19 @@ pub fn check_shape(scheme: &Scheme, shape: &[Vector3<f64>]) -> std::result::Resu
         return Err((
             DropReason::NonFinite,
             format!("point {i} {axis} is not a finite number"),
+        ));
+    }
+    if let Some((i, p)) = shape
+        .iter()
+        .enumerate()
+        .find(|(_, p)| p.amax() > MAX_COORDINATE)
+    {
+        return Err((
+            DropReason::OutOfRange,
+            format!(
+                "point {i} = [{:e}, {:e}, {:e}] is beyond ±{MAX_COORDINATE:e}: check the units",
+                p.x, p.y, p.z
+            ),
         ));
     }
     let frame = anchor_frame(scheme, shape)?;
@@ -461,6 +482,15 @@ pub fn subject_views(
                 format!("view {v} point {i} is not a finite number"),
             ));
         }
+        if let Some(i) = view
+            .iter()
+            .position(|p| p.is_some_and(|q| q.iter().any(|c| c.abs() > MAX_COORDINATE)))
+        {
+            return Err((
+                DropReason::OutOfRange,
+                format!("view {v} point {i} is beyond ±{MAX_COORDINATE:e} pixels"),
+            ));
+        }
         let shape = Shape2::from_options(view)
             .map_err(|e| (DropReason::NonFinite, format!("view {v}: {e}")))?;
         if shape.n_present() < 4 {
@@ -573,6 +603,8 @@ mod tests {
         for i in (0..17).chain(48..68) {
             shapes[17][i].y -= 30.0;
         }
+        // Metres read as nanometres, say.
+        shapes[19][4].z = 2e9;
         let v = validate_shapes(&ibug68(), &shapes, &ValidationOptions::default()).unwrap();
         assert_eq!(
             reasons(&v),
@@ -585,6 +617,7 @@ mod tests {
                 (13, DropReason::Mirrored),
                 (15, DropReason::Mirrored),
                 (17, DropReason::Outlier),
+                (19, DropReason::OutOfRange),
             ],
             "{:#?}",
             v.report
@@ -599,10 +632,15 @@ mod tests {
         assert!(d[2].detail.contains("one place"), "{}", d[2].detail);
         assert!(d[3].detail.contains("one line"), "{}", d[3].detail);
         assert!(d[4].detail.contains("plane"), "{}", d[4].detail);
-        assert_eq!(v.report.kept, 22);
+        assert!(
+            d[8].detail.contains("point 4 = [") && d[8].detail.contains("2e9]"),
+            "{}",
+            d[8].detail
+        );
+        assert_eq!(v.report.kept, 21);
         assert_eq!(
             v.report.summary(),
-            "30 shapes: 22 kept, 8 dropped (1 point_count, 1 non_finite, 3 degenerate, 2 mirrored, 1 outlier)"
+            "30 shapes: 21 kept, 9 dropped (1 point_count, 1 non_finite, 3 degenerate, 2 mirrored, 1 outlier, 1 out_of_range)"
         );
     }
 
