@@ -7,6 +7,8 @@ use std::time::Duration;
 
 use clap::{Args, ValueEnum};
 
+use super::auth::{AdminToken, check_token};
+
 /// Log line format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum LogFormat {
@@ -58,7 +60,21 @@ pub struct ServeArgs {
     /// Log filter (tracing EnvFilter syntax), e.g. info, debug, facepose=debug,warn.
     #[arg(long, env = "FACEPOSE_LOG", default_value = "info")]
     pub log: String,
+    /// A file holding the admin bearer token (retraining, activation, deletion). The token can
+    /// also come from the FACEPOSE_ADMIN_TOKEN environment variable (not both). Without a
+    /// token the admin routes answer 403. At least 16 visible ASCII characters; surrounding
+    /// whitespace is ignored.
+    #[arg(long, env = "FACEPOSE_ADMIN_TOKEN_FILE")]
+    pub admin_token_file: Option<PathBuf>,
+    /// How often the models folder's active pointers are read, so that a version activated by
+    /// another replica sharing the folder is served here too, e.g. 2s, 500ms.
+    #[arg(long, env = "FACEPOSE_REGISTRY_POLL", default_value = "2s")]
+    pub registry_poll: String,
 }
+
+/// The environment variable holding the admin token (read directly, never a flag: a flag
+/// would show in the process list).
+pub const ADMIN_TOKEN_ENV: &str = "FACEPOSE_ADMIN_TOKEN";
 
 /// The validated configuration.
 #[derive(Debug, Clone)]
@@ -70,6 +86,8 @@ pub struct Config {
     pub workers: usize,
     pub log_format: LogFormat,
     pub log: String,
+    pub admin_token: AdminToken,
+    pub registry_poll: Duration,
 }
 
 /// The request limits, shared by both transports.
@@ -84,15 +102,16 @@ pub struct Limits {
 
 /// A flag or variable with an unusable value.
 #[derive(Debug, thiserror::Error)]
-#[error("--{flag}: {reason}")]
+#[error("{setting}: {reason}")]
 pub struct ConfigError {
-    pub flag: &'static str,
+    /// `--flag`, or the environment variable that has no flag.
+    pub setting: String,
     pub reason: String,
 }
 
-fn bad(flag: &'static str, reason: impl Into<String>) -> ConfigError {
+fn bad(flag: &str, reason: impl Into<String>) -> ConfigError {
     ConfigError {
-        flag,
+        setting: format!("--{flag}"),
         reason: reason.into(),
     }
 }
@@ -121,6 +140,11 @@ impl ServeArgs {
             max_concurrency: positive("max-concurrency", self.max_concurrency)?,
             max_streams: positive("max-streams", self.max_streams)?,
         };
+        let registry_poll =
+            parse_duration(&self.registry_poll).map_err(|r| bad("registry-poll", r))?;
+        if registry_poll < Duration::from_millis(50) {
+            return Err(bad("registry-poll", "must be at least 50ms"));
+        }
         if limits.max_body < 1024 {
             return Err(bad("max-body", "must be at least 1KiB"));
         }
@@ -142,7 +166,44 @@ impl ServeArgs {
             workers,
             log_format: self.log_format,
             log: self.log.clone(),
+            admin_token: self.admin_token(std::env::var(ADMIN_TOKEN_ENV).ok())?,
+            registry_poll,
         })
+    }
+
+    /// The admin token from `--admin-token-file` or the environment's value `env`.
+    fn admin_token(&self, env: Option<String>) -> Result<AdminToken, ConfigError> {
+        let env = env.filter(|t| !t.is_empty());
+        let token = match (&self.admin_token_file, env) {
+            (Some(_), Some(_)) => {
+                return Err(bad(
+                    "admin-token-file",
+                    format!("{ADMIN_TOKEN_ENV} is set too; give the token one way only"),
+                ));
+            }
+            (Some(path), None) => {
+                let text = std::fs::read_to_string(path).map_err(|e| {
+                    bad(
+                        "admin-token-file",
+                        format!("cannot read {}: {e}", path.display()),
+                    )
+                })?;
+                let t = text.trim().to_string();
+                check_token(&t)
+                    .map_err(|r| bad("admin-token-file", format!("{}: {r}", path.display())))?;
+                t
+            }
+            (None, Some(t)) => {
+                let t = t.trim().to_string();
+                check_token(&t).map_err(|reason| ConfigError {
+                    setting: ADMIN_TOKEN_ENV.into(),
+                    reason,
+                })?;
+                t
+            }
+            (None, None) => return Ok(AdminToken::disabled()),
+        };
+        Ok(AdminToken::new(&token))
     }
 }
 
@@ -241,10 +302,50 @@ mod tests {
             (&["--request-timeout", "5 parsecs"][..], "--request-timeout"),
             (&["--request-timeout", "0s"][..], "--request-timeout"),
             (&["--log", "=="][..], "--log"),
+            (&["--registry-poll", "1ms"][..], "--registry-poll"),
+            (
+                &["--admin-token-file", "/nonexistent/token"][..],
+                "--admin-token-file",
+            ),
         ] {
             let err = parse(args).unwrap_err().to_string();
             assert!(err.starts_with(want), "{args:?}: {err}");
         }
+    }
+
+    #[test]
+    fn admin_token_sources() {
+        let args = |file: Option<&std::path::Path>| {
+            let mut v = vec!["facepose".to_string()];
+            if let Some(f) = file {
+                v.push("--admin-token-file".into());
+                v.push(f.display().to_string());
+            }
+            Cli::try_parse_from(v).unwrap().serve
+        };
+        let token = "0123456789abcdef0123";
+        assert!(!args(None).admin_token(None).unwrap().is_enabled());
+        assert!(
+            args(None)
+                .admin_token(Some(token.into()))
+                .unwrap()
+                .is_enabled()
+        );
+        let e = args(None).admin_token(Some("short".into())).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("FACEPOSE_ADMIN_TOKEN: the admin token has 5"),
+            "{e}"
+        );
+        let file = std::env::temp_dir().join(format!("facepose-token-{}", std::process::id()));
+        std::fs::write(&file, format!("{token}\n")).unwrap();
+        let t = args(Some(&file)).admin_token(None).unwrap();
+        assert!(t.check(Some(format!("Bearer {token}").as_bytes())).is_ok());
+        let e = args(Some(&file))
+            .admin_token(Some(token.into()))
+            .unwrap_err();
+        assert!(e.to_string().contains("one way only"), "{e}");
+        std::fs::remove_file(&file).unwrap();
     }
 
     #[test]

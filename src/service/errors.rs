@@ -6,7 +6,10 @@
 //! | `malformed_json` | 400 | (n/a) |
 //! | `unsupported_media_type` | 415 | (n/a) |
 //! | `invalid_argument` | 422 | INVALID_ARGUMENT |
+//! | `unauthenticated` | 401 | UNAUTHENTICATED |
+//! | `forbidden` | 403 | PERMISSION_DENIED |
 //! | `not_found` | 404 | NOT_FOUND |
+//! | `conflict` | 409 | FAILED_PRECONDITION |
 //! | `method_not_allowed` | 405 | (n/a) |
 //! | `payload_too_large` | 413 | RESOURCE_EXHAUSTED |
 //! | `overloaded` | 429 | UNAVAILABLE |
@@ -29,8 +32,15 @@ pub enum ErrorKind {
     /// The request is well-formed but its values are unusable: landmarks, scheme, method,
     /// camera, unknown fields.
     InvalidArgument,
-    /// No such model or route.
+    /// An admin route without a valid bearer token.
+    Unauthenticated,
+    /// An admin route on a server with no admin token configured (admin routes disabled).
+    Forbidden,
+    /// No such model, version, job or route.
     NotFound,
+    /// The registry's state forbids it: deleting the active version, retraining without a
+    /// models folder, activating a version that does not load.
+    Conflict,
     /// Wrong HTTP method for the route.
     MethodNotAllowed,
     /// Body, message or batch over the configured limit.
@@ -51,7 +61,10 @@ impl ErrorKind {
             ErrorKind::MalformedJson => StatusCode::BAD_REQUEST,
             ErrorKind::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ErrorKind::InvalidArgument => StatusCode::UNPROCESSABLE_ENTITY,
+            ErrorKind::Unauthenticated => StatusCode::UNAUTHORIZED,
+            ErrorKind::Forbidden => StatusCode::FORBIDDEN,
             ErrorKind::NotFound => StatusCode::NOT_FOUND,
+            ErrorKind::Conflict => StatusCode::CONFLICT,
             ErrorKind::MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
             ErrorKind::PayloadTooLarge => StatusCode::PAYLOAD_TOO_LARGE,
             ErrorKind::Overloaded => StatusCode::TOO_MANY_REQUESTS,
@@ -65,7 +78,10 @@ impl ErrorKind {
             ErrorKind::MalformedJson
             | ErrorKind::UnsupportedMediaType
             | ErrorKind::InvalidArgument => tonic::Code::InvalidArgument,
+            ErrorKind::Unauthenticated => tonic::Code::Unauthenticated,
+            ErrorKind::Forbidden => tonic::Code::PermissionDenied,
             ErrorKind::NotFound => tonic::Code::NotFound,
+            ErrorKind::Conflict => tonic::Code::FailedPrecondition,
             ErrorKind::MethodNotAllowed => tonic::Code::Unimplemented,
             ErrorKind::PayloadTooLarge => tonic::Code::ResourceExhausted,
             ErrorKind::Overloaded | ErrorKind::Unavailable => tonic::Code::Unavailable,
@@ -80,7 +96,10 @@ impl ErrorKind {
             ErrorKind::MalformedJson => "malformed_json",
             ErrorKind::UnsupportedMediaType => "unsupported_media_type",
             ErrorKind::InvalidArgument => "invalid_argument",
+            ErrorKind::Unauthenticated => "unauthenticated",
+            ErrorKind::Forbidden => "forbidden",
             ErrorKind::NotFound => "not_found",
+            ErrorKind::Conflict => "conflict",
             ErrorKind::MethodNotAllowed => "method_not_allowed",
             ErrorKind::PayloadTooLarge => "payload_too_large",
             ErrorKind::Overloaded => "overloaded",
@@ -203,6 +222,12 @@ impl IntoResponse for ApiError {
         if retry {
             resp.headers_mut()
                 .insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
+        }
+        if status == StatusCode::UNAUTHORIZED {
+            resp.headers_mut().insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static("Bearer realm=\"facepose admin\""),
+            );
         }
         resp
     }

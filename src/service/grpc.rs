@@ -15,10 +15,12 @@ use tonic::{Request, Response, Status, Streaming};
 
 use super::AppState;
 use super::errors::{ApiError, ErrorKind};
+use super::http::{VersionSummary, version_summaries};
+use super::http_registry::versions_response;
 use super::metrics::{self, FaceTally};
 use super::pose::{FacePose, FaceSpec, INLINE_FACES, estimate_face, for_each_face};
 use super::proto::{self, pose_service_server::PoseService};
-use super::registry::{ModelSet, ServedModel};
+use super::registry::{Catalog, ModelSet, ServedModel};
 use super::stream::Session;
 use crate::estimate::Intrinsics;
 
@@ -89,8 +91,13 @@ pub fn face_error(e: &ApiError) -> proto::FaceError {
     }
 }
 
-fn model_info(m: &ServedModel, set: &ModelSet) -> proto::ModelInfo {
+fn model_info(m: &ServedModel, set: &ModelSet, catalog: &Catalog) -> proto::ModelInfo {
+    let stored = m.store.as_ref().and_then(|s| catalog.models.get(s));
     proto::ModelInfo {
+        versions: version_summaries(stored, Some(m))
+            .into_iter()
+            .map(version_message)
+            .collect(),
         name: m.name.clone(),
         version: m.version.clone(),
         created: m.created.clone(),
@@ -107,6 +114,29 @@ fn model_info(m: &ServedModel, set: &ModelSet) -> proto::ModelInfo {
         source: m.source.to_string(),
         is_default: m.name == set.default_name(),
     }
+}
+
+fn version_message(v: VersionSummary) -> proto::VersionInfo {
+    proto::VersionInfo {
+        version: v.version,
+        created: v.created,
+        checksum: v.checksum,
+        scheme: v.scheme,
+        source: v.source,
+        active: v.active,
+        served: v.served,
+        fixed: v.fixed,
+    }
+}
+
+/// Checks the admin token of a call (`authorization: Bearer <token>` metadata).
+fn authorize<T>(state: &AppState, request: &Request<T>) -> Result<(), ApiError> {
+    state.admin.check(
+        request
+            .metadata()
+            .get("authorization")
+            .map(|v| v.as_bytes()),
+    )
 }
 
 /// One face with its own outcome, as in a batch or a frame.
@@ -303,8 +333,9 @@ impl PoseService for PoseApi {
         let state = self.state.clone();
         unary(self, "ListModels", async move {
             let set = state.registry.snapshot();
+            let catalog = state.registry.catalog();
             Ok(proto::ListModelsResponse {
-                models: set.iter().map(|m| model_info(m, &set)).collect(),
+                models: set.iter().map(|m| model_info(m, &set, &catalog)).collect(),
                 default_model: set.default_name().to_string(),
             })
         })
@@ -323,7 +354,54 @@ impl PoseService for PoseApi {
             }
             let set = state.registry.snapshot();
             let m = set.get(Some(&name))?;
-            Ok(model_info(m, &set))
+            Ok(model_info(m, &set, &state.registry.catalog()))
+        })
+        .await
+    }
+
+    async fn list_versions(
+        &self,
+        request: Request<proto::ListVersionsRequest>,
+    ) -> Result<Response<proto::ListVersionsResponse>, Status> {
+        let state = self.state.clone();
+        unary(self, "ListVersions", async move {
+            let name = request.into_inner().name;
+            state.registry.refresh_catalog().await;
+            let v = versions_response(&state, &name)?;
+            Ok(proto::ListVersionsResponse {
+                name: v.name,
+                active: v.active.unwrap_or_default(),
+                versions: v.versions.into_iter().map(version_message).collect(),
+            })
+        })
+        .await
+    }
+
+    async fn activate_version(
+        &self,
+        request: Request<proto::ActivateVersionRequest>,
+    ) -> Result<Response<proto::ModelInfo>, Status> {
+        let state = self.state.clone();
+        unary(self, "ActivateVersion", async move {
+            authorize(&state, &request)?;
+            let req = request.into_inner();
+            let served = state.registry.activate(&req.name, &req.version).await?;
+            let set = state.registry.snapshot();
+            Ok(model_info(&served, &set, &state.registry.catalog()))
+        })
+        .await
+    }
+
+    async fn delete_version(
+        &self,
+        request: Request<proto::DeleteVersionRequest>,
+    ) -> Result<Response<proto::DeleteVersionResponse>, Status> {
+        let state = self.state.clone();
+        unary(self, "DeleteVersion", async move {
+            authorize(&state, &request)?;
+            let req = request.into_inner();
+            state.registry.delete(&req.name, &req.version).await?;
+            Ok(proto::DeleteVersionResponse {})
         })
         .await
     }

@@ -20,9 +20,10 @@ use utoipa::{OpenApi, ToSchema};
 
 use super::AppState;
 use super::errors::{ApiError, ErrorBody, ErrorKind};
+use super::http_registry::{self, BearerAuth};
 use super::metrics::{self, FaceTally};
 use super::pose::{FaceSpec, estimate_face, for_each_face, run_maybe_blocking};
-use super::registry::{ModelSet, ServedModel};
+use super::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
 use crate::estimate::Intrinsics;
 use crate::record::{Landmarks, PoseRecord};
 
@@ -226,6 +227,30 @@ pub struct ModelSummary {
     pub source: String,
     /// Whether requests that name no model use it.
     pub default: bool,
+    /// Its versions in the models folder (empty without one): the folder's active one and the
+    /// one this replica serves are marked.
+    pub versions: Vec<VersionSummary>,
+}
+
+/// One version of a model in the models folder.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct VersionSummary {
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    pub checksum: String,
+    /// The model's own scheme in that version.
+    pub scheme: String,
+    /// The bundle file, or `embedded`.
+    pub source: String,
+    /// The folder's active version: what every replica serves once it has followed the
+    /// folder.
+    pub active: bool,
+    /// The version this replica serves.
+    pub served: bool,
+    /// Deployed with the folder (`DIR/<name>/model.json`) or built in: not deletable through
+    /// the API.
+    pub fixed: bool,
 }
 
 #[derive(Debug, Serialize, ToSchema)]
@@ -262,7 +287,33 @@ pub struct Status {
     pub status: &'static str,
 }
 
-fn summary(m: &ServedModel, set: &ModelSet) -> ModelSummary {
+/// The versions of a models folder entry, as the API lists them.
+pub fn version_summaries(
+    stored: Option<&StoredVersions>,
+    served: Option<&ServedModel>,
+) -> Vec<VersionSummary> {
+    let Some(stored) = stored else {
+        return vec![];
+    };
+    stored
+        .versions
+        .iter()
+        .map(|v| VersionSummary {
+            version: v.version.clone(),
+            created: v.created.clone(),
+            checksum: v.checksum.clone(),
+            scheme: v.scheme.clone(),
+            source: v.source.clone(),
+            active: stored.active.as_deref() == Some(v.version.as_str()),
+            served: served.is_some_and(|m| m.version == v.version),
+            fixed: v.fixed,
+        })
+        .collect()
+}
+
+/// A served model as the API lists it, with its versions from the catalog.
+pub fn model_summary(m: &ServedModel, set: &ModelSet, catalog: &Catalog) -> ModelSummary {
+    let stored = m.store.as_ref().and_then(|s| catalog.models.get(s));
     ModelSummary {
         name: m.name.clone(),
         version: m.version.clone(),
@@ -279,6 +330,7 @@ fn summary(m: &ServedModel, set: &ModelSet) -> ModelSummary {
         checksum: m.checksum.clone(),
         source: m.source.to_string(),
         default: m.name == set.default_name(),
+        versions: version_summaries(stored, Some(m)),
     }
 }
 
@@ -587,9 +639,13 @@ pub async fn pose_batch(
     responses((status = 200, body = ModelsResponse)))]
 pub async fn list_models(State(st): State<SharedState>) -> Json<ModelsResponse> {
     let set = st.registry.snapshot();
+    let catalog = st.registry.catalog();
     Json(ModelsResponse {
         default_model: set.default_name().to_string(),
-        models: set.iter().map(|m| summary(m, &set)).collect(),
+        models: set
+            .iter()
+            .map(|m| model_summary(m, &set, &catalog))
+            .collect(),
     })
 }
 
@@ -604,7 +660,7 @@ pub async fn get_model(
     let set = st.registry.snapshot();
     let m = set.get(Some(&name))?;
     Ok(Json(ModelDetail {
-        summary: summary(m, &set),
+        summary: model_summary(m, &set, &st.registry.catalog()),
         provenance: ProvenanceSummary {
             command: m.provenance.command.clone(),
             notes: m.provenance.notes.clone(),
@@ -629,12 +685,22 @@ pub async fn healthz() -> Response {
     json_bytes(br#"{"status":"alive"}"#.to_vec())
 }
 
-/// Readiness: models loaded and not draining (503 while shutting down).
+/// Readiness: models loaded and not draining (503 while shutting down). While an active
+/// version of the models folder fails to load here, the answer is still 200 (the previous
+/// version serves) and lists the problem under `problems`.
 #[utoipa::path(get, path = "/readyz", tag = "operations",
     responses((status = 200, body = Status), (status = 503, body = Status)))]
 pub async fn readyz(State(st): State<SharedState>) -> Response {
     if st.lifecycle.is_ready() {
-        json_bytes(br#"{"status":"ready"}"#.to_vec())
+        let problems = st.registry.problems();
+        if problems.is_empty() {
+            return json_bytes(br#"{"status":"ready"}"#.to_vec());
+        }
+        let problems: Vec<_> = problems
+            .iter()
+            .map(|p| serde_json::json!({"model": p.model, "version": p.version, "message": p.message}))
+            .collect();
+        Json(serde_json::json!({"status": "ready", "problems": problems})).into_response()
     } else {
         (
             StatusCode::SERVICE_UNAVAILABLE,
@@ -677,11 +743,15 @@ pub async fn openapi(State(st): State<SharedState>) -> Response {
             Rz(roll), given row-major. The same service answers gRPC (facepose.v1.PoseService) \
             on the same port."
     ),
-    paths(pose, pose_batch, list_models, get_model, healthz, readyz, metrics_text, openapi),
+    paths(pose, pose_batch, list_models, get_model,
+        http_registry::list_versions, http_registry::version_action, http_registry::delete_version,
+        healthz, readyz, metrics_text, openapi),
     components(schemas(ErrorBody, ApiError, ErrorKind)),
+    modifiers(&BearerAuth),
     tags(
         (name = "pose", description = "Pose estimation"),
         (name = "models", description = "Loaded model bundles"),
+        (name = "registry", description = "Model versions, activation and deletion (admin routes need a bearer token)"),
         (name = "operations", description = "Health, readiness, metrics")
     )
 )]
@@ -705,6 +775,14 @@ pub fn router(state: SharedState) -> Router {
         .route("/v1/pose:batch", post(pose_batch))
         .route("/v1/models", get(list_models))
         .route("/v1/models/{name}", get(get_model))
+        .route(
+            "/v1/models/{name}/versions",
+            get(http_registry::list_versions),
+        )
+        .route(
+            "/v1/models/{name}/versions/{version}",
+            post(http_registry::version_action).delete(http_registry::delete_version),
+        )
         .route_layer(middleware::from_fn_with_state(state.clone(), limits))
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))
@@ -772,6 +850,8 @@ fn route_label(path: Option<&MatchedPath>) -> &'static str {
         Some("/v1/pose:batch") => "/v1/pose:batch",
         Some("/v1/models") => "/v1/models",
         Some("/v1/models/{name}") => "/v1/models/{name}",
+        Some("/v1/models/{name}/versions") => "/v1/models/{name}/versions",
+        Some("/v1/models/{name}/versions/{version}") => "/v1/models/{name}/versions/{version}",
         Some("/healthz") => "/healthz",
         Some("/readyz") => "/readyz",
         Some("/metrics") => "/metrics",
@@ -912,6 +992,8 @@ mod tests {
             "/v1/pose:batch",
             "/v1/models",
             "/v1/models/{name}",
+            "/v1/models/{name}/versions",
+            "/v1/models/{name}/versions/{version}",
             "/healthz",
             "/readyz",
             "/metrics",

@@ -11,7 +11,10 @@
 //! | `facepose_poses_total` | counter | `transport`, `method` (the estimator used) |
 //! | `facepose_estimate_errors_total` | counter | `transport`, `code` (per face) |
 //! | `facepose_streams_active` | gauge | |
-//! | `facepose_model_info` | gauge (1) | `name`, `version`, `checksum`, `default` |
+//! | `facepose_model_info` | gauge (1 served, 0 replaced) | `name`, `version`, `checksum`, `default` |
+//! | `facepose_model_swaps_total` | counter | `name` |
+//! | `facepose_model_load_failures_total` | counter | `name` (the models folder entry) |
+//! | `facepose_model_sync_problems` | gauge | (models whose active version is not served here) |
 //! | `facepose_ready` | gauge | |
 
 use std::time::Duration;
@@ -20,7 +23,7 @@ use metrics::{counter, describe_counter, describe_gauge, describe_histogram, gau
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 
 use super::errors::ErrorKind;
-use super::registry::ModelSet;
+use super::registry::{ModelSet, ServedModel};
 use crate::estimate::Method;
 
 /// Latency buckets, seconds: 50 µs to 10 s.
@@ -85,6 +88,18 @@ impl Metrics {
             "Loaded models (value 1), with their version and checksum"
         );
         describe_gauge!("facepose_ready", "1 when serving, 0 when draining");
+        describe_counter!(
+            "facepose_model_swaps_total",
+            "Model versions swapped in after start (activations here or seen in the models folder)"
+        );
+        describe_counter!(
+            "facepose_model_load_failures_total",
+            "Active versions in the models folder that failed to load (the previous one keeps serving)"
+        );
+        describe_gauge!(
+            "facepose_model_sync_problems",
+            "Models folder entries whose active version this replica cannot serve (listed by /readyz)"
+        );
         Metrics { handle }
     }
 
@@ -190,25 +205,52 @@ pub fn ready(on: bool) {
     gauge!("facepose_ready").set(if on { 1.0 } else { 0.0 });
 }
 
-/// One `facepose_model_info` series per loaded model.
+/// One `facepose_model_info` series per loaded model; the registry gauges at zero.
 pub fn models(set: &ModelSet) {
     for m in set.iter() {
-        gauge!(
-            "facepose_model_info",
-            "name" => m.name.clone(),
-            "version" => m.version.clone(),
-            "checksum" => m.checksum.clone(),
-            "default" => if m.name == set.default_name() { "true" } else { "false" }
-        )
-        .set(1.0);
+        model_info_gauge(m, set.default_name()).set(1.0);
     }
+    sync_problems(0);
+}
+
+fn model_info_gauge(m: &ServedModel, default: &str) -> metrics::Gauge {
+    gauge!(
+        "facepose_model_info",
+        "name" => m.name.clone(),
+        "version" => m.version.clone(),
+        "checksum" => m.checksum.clone(),
+        "default" => if m.name == default { "true" } else { "false" }
+    )
+}
+
+/// A version swapped in: its info series goes to 1, the replaced one's to 0.
+pub fn model_swapped(old: Option<&ServedModel>, new: &ServedModel, default: &str) {
+    if let Some(o) = old {
+        model_info_gauge(o, default).set(0.0);
+    }
+    model_info_gauge(new, default).set(1.0);
+    counter!("facepose_model_swaps_total", "name" => new.name.clone()).increment(1);
+}
+
+/// An active version of the models folder that failed to load (counted once per problem).
+pub fn model_load_failed(store: &str) {
+    counter!("facepose_model_load_failures_total", "name" => store.to_string()).increment(1);
+}
+
+/// How many models folder entries the watcher currently cannot follow.
+pub fn sync_problems(n: usize) {
+    gauge!("facepose_model_sync_problems").set(n as f64);
 }
 
 fn status_label(status: u16) -> &'static str {
     match status {
         200 => "200",
+        204 => "204",
         400 => "400",
+        401 => "401",
+        403 => "403",
         404 => "404",
+        409 => "409",
         405 => "405",
         413 => "413",
         415 => "415",

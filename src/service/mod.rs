@@ -7,11 +7,13 @@
 //! The service converts between wire types and the core's types and nothing more: estimation,
 //! rotations and angle conventions are the core's (`estimate`, `geometry`).
 
+pub mod auth;
 pub mod config;
 pub mod errors;
 pub mod grpc;
 pub mod health;
 pub mod http;
+pub mod http_registry;
 pub mod metrics;
 pub mod pose;
 pub mod registry;
@@ -45,7 +47,9 @@ use shutdown::Lifecycle;
 /// What the handlers of both transports share.
 #[derive(Debug)]
 pub struct AppState {
-    pub registry: Registry,
+    pub registry: Arc<Registry>,
+    /// The admin bearer token (retraining, activation, deletion).
+    pub admin: auth::AdminToken,
     pub limits: Limits,
     pub lifecycle: Lifecycle,
     pub metrics: metrics::Metrics,
@@ -134,7 +138,8 @@ fn models_dir(flag: Option<&Path>) -> Option<PathBuf> {
 pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     // State.
     let dir = models_dir(cfg.models.as_deref());
-    let set = tokio::task::spawn_blocking(move || load_models(dir.as_deref()))
+    let load_dir = dir.clone();
+    let set = tokio::task::spawn_blocking(move || load_models(load_dir.as_deref()))
         .await
         .map_err(|e| ServeError::Io(std::io::Error::other(e)))??;
     let metrics = metrics::Metrics::install();
@@ -143,8 +148,18 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     for m in set.iter() {
         tracing::info!(name = %m.name, version = %m.version, source = %m.source, "model loaded");
     }
+    let registry = Arc::new(Registry::with_dir(set, dir));
+    registry.refresh_catalog().await;
+    registry.spawn_watcher(cfg.registry_poll);
+    tracing::info!(
+        admin = if cfg.admin_token.is_enabled() { "enabled" } else { "disabled (no token)" },
+        folder = %registry.dir().map_or("none".into(), |d| d.display().to_string()),
+        poll = ?cfg.registry_poll,
+        "model registry"
+    );
     let state = Arc::new(AppState {
-        registry: Registry::new(set),
+        registry,
+        admin: cfg.admin_token.clone(),
         limits: cfg.limits,
         lifecycle: Lifecycle::default(),
         metrics,

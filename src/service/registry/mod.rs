@@ -1,27 +1,48 @@
-//! The models the service answers with: an immutable [`ModelSet`] behind an [`ArcSwap`].
+//! The models the service answers with: an immutable [`ModelSet`] behind an [`ArcSwap`], and
+//! its link to the models folder (`--models DIR`; layout and crash rules in [`versions`]).
 //!
 //! A request takes a snapshot (`Arc<ModelSet>`) when it starts and finishes on it, so replacing
-//! the set ([`Registry::replace`]: a later retraining or rollback) is atomic and never fails a
-//! request in progress; the old set is freed when its last request ends.
+//! the set (an activation here, or one seen on disk) is atomic and never fails a request in
+//! progress; the old set is freed when its last request ends. A new version is loaded (about
+//! 70 ms) on the blocking pool before the swap, never on the async reactor.
 //!
-//! Loading (`--models DIR`): every subfolder holding a `model.json` is a model named by the
-//! bundle's `name` field (folders starting with `.` are skipped: they are atomic writes in
-//! progress). Every bundle is validated at start; a broken one stops the start with an error
-//! naming the file and the field (a service that silently serves fewer models than deployed is
-//! worse than one that does not start). Without a model named `default`, the embedded default
-//! model serves as `default`.
+//! Loading at start: every folder `DIR/<name>` serves its active version (the one `ACTIVE`
+//! names, else the legacy `DIR/<name>/model.json`); folders with neither are listed but not
+//! served. A legacy bundle serves under its `name` field (as before versions existed); a
+//! numbered version must carry its folder's name. Every active bundle is validated at start; a
+//! broken one stops the start with an error naming the file and the field (a service that
+//! silently serves fewer models than deployed is worse than one that does not start). Without
+//! a model named `default`, the embedded default model serves as `default`, as version
+//! [`embedded_version`] of the folder `DIR/default`.
+//!
+//! Afterwards, [`Registry::sync`] (the watcher, every `--registry-poll`, [`watch`]) reads the
+//! pointers again and loads any newly active version, so replicas sharing the folder converge.
+//! A version that fails to load there is logged and reported ([`Registry::problems`]) and the
+//! previous one keeps serving. Changes made through the API are in [`changes`], the listing
+//! of versions in [`catalog`].
 
-use std::collections::BTreeMap;
+pub mod catalog;
+pub mod changes;
+pub mod pointer;
+pub mod versions;
+pub mod watch;
+
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
+use std::time::SystemTime;
 
 use arc_swap::ArcSwap;
 
 use super::errors::{ApiError, ErrorKind};
 use crate::estimate::Method;
 use crate::model::bundle::{Bundle, BundleError, Provenance};
-use crate::model::store::{MODEL_FILE, StoreError, load_model};
+use crate::model::store::{StoreError, load_model};
 use crate::model::{PoseModel, default_model};
+pub use catalog::{Catalog, StoredVersions, VersionInfo, embedded_version};
+pub use changes::version_error;
+use versions::{StoredModel, VersionError};
+pub use watch::SyncProblem;
 
 /// The name of the model used when a request names none.
 pub const DEFAULT_MODEL: &str = "default";
@@ -54,11 +75,13 @@ pub struct ServedModel {
     pub checksum: String,
     pub provenance: Provenance,
     pub source: ModelSource,
+    /// The models folder entry (`DIR/<store>`) it is a version of, if any.
+    pub store: Option<String>,
     pub model: PoseModel,
 }
 
 impl ServedModel {
-    fn new(bundle: Bundle, model: PoseModel, source: ModelSource) -> Self {
+    fn new(bundle: Bundle, model: PoseModel, source: ModelSource, store: Option<String>) -> Self {
         ServedModel {
             name: bundle.name,
             version: bundle.version,
@@ -66,6 +89,7 @@ impl ServedModel {
             checksum: bundle.checksum,
             provenance: bundle.provenance,
             source,
+            store,
             model,
         }
     }
@@ -128,6 +152,16 @@ impl ModelSet {
         })
     }
 
+    /// This set with `model` added, or replacing the model of the same name.
+    pub fn with_model(&self, model: Arc<ServedModel>) -> ModelSet {
+        let mut models = self.models.clone();
+        models.insert(model.name.clone(), model);
+        ModelSet {
+            models,
+            default: self.default.clone(),
+        }
+    }
+
     /// The model named `name`, or the default one for `None` or an empty name.
     pub fn get(&self, name: Option<&str>) -> Result<&Arc<ServedModel>, ApiError> {
         let name = name.filter(|n| !n.is_empty()).unwrap_or(&self.default);
@@ -140,6 +174,13 @@ impl ModelSet {
                 ),
             )
         })
+    }
+
+    /// The model served from the folder entry `store`.
+    pub fn by_store(&self, store: &str) -> Option<&Arc<ServedModel>> {
+        self.models
+            .values()
+            .find(|m| m.store.as_deref() == Some(store))
     }
 
     /// The default model's name.
@@ -161,16 +202,35 @@ impl ModelSet {
     }
 }
 
-/// The current model set, swappable atomically.
+/// The current model set, swappable atomically, and its models folder.
 #[derive(Debug)]
 pub struct Registry {
     current: ArcSwap<ModelSet>,
+    dir: Option<PathBuf>,
+    /// Serializes changes of the set made by this process (activations, the watcher).
+    changes: tokio::sync::Mutex<()>,
+    catalog: ArcSwap<Catalog>,
+    /// What the watcher could not serve, by model folder.
+    failures: Mutex<BTreeMap<String, watch::Failure>>,
+    /// Version metadata by bundle file, with the file's modification time.
+    meta: Mutex<HashMap<PathBuf, (Option<SystemTime>, VersionInfo)>>,
 }
 
 impl Registry {
+    /// A registry without a models folder (the set never changes but by [`Registry::replace`]).
     pub fn new(set: ModelSet) -> Self {
+        Self::with_dir(set, None)
+    }
+
+    /// A registry following the models folder `dir`.
+    pub fn with_dir(set: ModelSet, dir: Option<PathBuf>) -> Self {
         Registry {
             current: ArcSwap::from_pointee(set),
+            dir,
+            changes: tokio::sync::Mutex::new(()),
+            catalog: ArcSwap::from_pointee(Catalog::default()),
+            failures: Mutex::new(BTreeMap::new()),
+            meta: Mutex::new(HashMap::new()),
         }
     }
 
@@ -183,6 +243,121 @@ impl Registry {
     /// the set they started with.
     pub fn replace(&self, set: ModelSet) -> Arc<ModelSet> {
         self.current.swap(Arc::new(set))
+    }
+
+    /// The models folder, if the server has one.
+    pub fn dir(&self) -> Option<&Path> {
+        self.dir.as_deref()
+    }
+
+    /// The models folder, or the error every registry change gives without one.
+    pub fn require_dir(&self) -> Result<&Path, ApiError> {
+        self.dir.as_deref().ok_or_else(|| {
+            ApiError::new(
+                ErrorKind::Conflict,
+                "this server has no models folder, so it cannot store versions: start it with \
+                 --models DIR (a folder shared by every replica)",
+            )
+        })
+    }
+
+    /// The folder's versions as last read.
+    pub fn catalog(&self) -> Arc<Catalog> {
+        self.catalog.load_full()
+    }
+
+    /// Swaps `model` into the set in one atomic step (requests in progress keep the set they
+    /// started with), replacing the model of the same name.
+    fn install(&self, model: ServedModel) -> Arc<ServedModel> {
+        let model = Arc::new(model);
+        let old = self
+            .current
+            .rcu(|set| Arc::new(set.with_model(model.clone())));
+        let previous = old.get(Some(&model.name)).ok().cloned();
+        super::metrics::model_swapped(previous.as_deref(), &model, old.default_name());
+        let mut failures = lock(&self.failures);
+        if failures
+            .remove(model.store.as_deref().unwrap_or(&model.name))
+            .is_some()
+        {
+            super::metrics::sync_problems(failures.len());
+        }
+        drop(failures);
+        model
+    }
+}
+
+/// A std mutex's guard, also after a panic elsewhere (the data stay consistent: every
+/// critical section here is a single insert, remove or read).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// Runs blocking file work on the blocking pool.
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::internal(format!("registry task failed: {e}")))?
+}
+
+/// Where an active version comes from.
+#[derive(Debug, Clone)]
+enum Resolved {
+    File { file: PathBuf, legacy: bool },
+    Embedded,
+}
+
+/// Version `version` of the folder entry `name`: a numbered version, the legacy bundle, or the
+/// embedded default.
+fn resolve(stored: Option<&StoredModel>, name: &str, version: &str) -> Option<Resolved> {
+    if let Some(v) = stored.and_then(|m| m.get(version)) {
+        return Some(Resolved::File {
+            file: v.file.clone(),
+            legacy: v.legacy,
+        });
+    }
+    (name == DEFAULT_MODEL && version == embedded_version()).then_some(Resolved::Embedded)
+}
+
+/// Loads a resolved version as a served model of the folder entry `store`.
+fn load_resolved(store: &str, source: &Resolved) -> Result<ServedModel, RegistryError> {
+    match source {
+        Resolved::Embedded => {
+            let (bundle, model) = default_model()?;
+            let mut m = ServedModel::new(
+                bundle,
+                model,
+                ModelSource::Embedded,
+                Some(store.to_string()),
+            );
+            m.name = DEFAULT_MODEL.into();
+            Ok(m)
+        }
+        Resolved::File { file, legacy } => {
+            let (bundle, model) = load_model(file)?;
+            if !legacy {
+                let id = file
+                    .parent()
+                    .and_then(|p| p.file_name())
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                if bundle.name != store || bundle.version != id {
+                    return Err(RegistryError::Mismatch {
+                        file: file.clone(),
+                        found: format!("{:?} version {:?}", bundle.name, bundle.version),
+                        expected: format!("{store:?} version {id:?}"),
+                    });
+                }
+            }
+            Ok(ServedModel::new(
+                bundle,
+                model,
+                ModelSource::File(file.clone()),
+                Some(store.to_string()),
+            ))
+        }
     }
 }
 
@@ -206,28 +381,62 @@ pub enum RegistryError {
     },
     #[error("no model named {0:?}")]
     NoDefault(String),
+    #[error("models folder: {0}")]
+    Versions(#[from] VersionError),
+    #[error("{}: holds model {found}, its place in the folder says {expected}", file.display())]
+    Mismatch {
+        file: PathBuf,
+        found: String,
+        expected: String,
+    },
+    #[error("{}: names version {version}, which is not in the folder (it has {})", pointer.display(), existing.join(", "))]
+    Pointer {
+        pointer: PathBuf,
+        version: String,
+        existing: Vec<String>,
+    },
 }
 
-/// Loads every model of `dir` (see the module docs) in parallel, plus the embedded default
-/// model if `dir` has no `default`. `dir = None`: the embedded default model only.
+/// Loads the active version of every model of `dir` (see the module docs) in parallel, plus
+/// the embedded default model if `dir` serves no `default`, and removes stale temporaries.
+/// `dir = None`: the embedded default model only.
 pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
-    let files = match dir {
-        Some(d) => bundle_files(d)?,
+    let stored = match dir {
+        Some(d) => {
+            if !d.is_dir() {
+                return Err(RegistryError::Dir {
+                    path: d.into(),
+                    source: std::io::Error::new(
+                        std::io::ErrorKind::NotFound,
+                        "not a folder (or does not exist)",
+                    ),
+                });
+            }
+            versions::scan(d)?
+        }
         None => vec![],
     };
+    let mut sources = Vec::new();
+    for m in &stored {
+        for p in versions::clean_stale(&m.dir, versions::STALE_AGE) {
+            tracing::info!(path = %p.display(), "removed a stale temporary entry");
+        }
+        let Some(active) = m.active() else { continue };
+        match resolve(Some(m), &m.name, active) {
+            Some(source) => sources.push((m.name.clone(), source)),
+            None => {
+                return Err(RegistryError::Pointer {
+                    pointer: m.dir.join(pointer::ACTIVE_FILE),
+                    version: active.into(),
+                    existing: m.ids(),
+                });
+            }
+        }
+    }
     let loaded: Vec<Result<ServedModel, RegistryError>> = std::thread::scope(|s| {
-        let handles: Vec<_> = files
+        let handles: Vec<_> = sources
             .iter()
-            .map(|f| {
-                s.spawn(move || {
-                    let (bundle, model) = load_model(f)?;
-                    Ok(ServedModel::new(
-                        bundle,
-                        model,
-                        ModelSource::File(f.clone()),
-                    ))
-                })
-            })
+            .map(|(name, source)| s.spawn(move || load_resolved(name, source)))
             .collect();
         handles
             .into_iter()
@@ -242,32 +451,12 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
     });
     let mut models = loaded.into_iter().collect::<Result<Vec<_>, _>>()?;
     if !models.iter().any(|m| m.name == DEFAULT_MODEL) {
-        let (bundle, model) = default_model()?;
-        let mut m = ServedModel::new(bundle, model, ModelSource::Embedded);
-        m.name = DEFAULT_MODEL.into();
+        let store = dir.map(|_| DEFAULT_MODEL);
+        let mut m = load_resolved(DEFAULT_MODEL, &Resolved::Embedded)?;
+        m.store = store.map(str::to_string);
         models.push(m);
     }
     ModelSet::new(models, DEFAULT_MODEL)
-}
-
-/// `dir/*/model.json`, sorted, skipping hidden folders.
-fn bundle_files(dir: &Path) -> Result<Vec<PathBuf>, RegistryError> {
-    let io = |source| RegistryError::Dir {
-        path: dir.into(),
-        source,
-    };
-    let mut files = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(io)? {
-        let entry = entry.map_err(io)?;
-        let path = entry.path();
-        let hidden = entry.file_name().to_string_lossy().starts_with('.');
-        let file = path.join(MODEL_FILE);
-        if !hidden && path.is_dir() && file.is_file() {
-            files.push(file);
-        }
-    }
-    files.sort();
-    Ok(files)
 }
 
 #[cfg(test)]
@@ -281,6 +470,7 @@ mod tests {
         let m = set.get(None).unwrap();
         assert_eq!(m.name, "default");
         assert_eq!(m.source, ModelSource::Embedded);
+        assert_eq!(m.store, None);
         assert_eq!(
             m.schemes().collect::<Vec<_>>(),
             [("ibug68", 68), ("inner51", 51), ("five", 5)]
@@ -289,6 +479,7 @@ mod tests {
         let err = set.get(Some("nope")).unwrap_err();
         assert_eq!(err.kind, ErrorKind::NotFound);
         assert!(err.message.contains("loaded models: default"), "{err}");
+        assert_eq!(embedded_version(), m.version);
     }
 
     #[test]

@@ -1,0 +1,143 @@
+//! Admin authentication: retraining, activation and deletion need `Authorization: Bearer
+//! <token>` (HTTP header or gRPC metadata) with the token configured by `FACEPOSE_ADMIN_TOKEN`
+//! or `--admin-token-file`. Read-only routes need nothing.
+//!
+//! | configured | request | HTTP | gRPC |
+//! |---|---|---|---|
+//! | no token | any | 403 `forbidden` | PERMISSION_DENIED |
+//! | token | no `Authorization`, not `Bearer`, or a wrong token | 401 `unauthenticated` (`WWW-Authenticate: Bearer`) | UNAUTHENTICATED |
+//! | token | the token | the route's answer | |
+//!
+//! The comparison is in constant time: both sides are hashed (SHA-256, so their lengths do not
+//! matter either) and the digests compared with `subtle`. The token is never logged, never put
+//! in a message, and its `Debug` form is redacted.
+
+use sha2::{Digest, Sha256};
+use subtle::ConstantTimeEq;
+
+use super::errors::{ApiError, ErrorKind};
+
+/// The shortest token accepted at start.
+pub const MIN_TOKEN_LEN: usize = 16;
+
+/// The configured admin token, if any (only its digest is kept).
+#[derive(Clone, Default)]
+pub struct AdminToken {
+    digest: Option<[u8; 32]>,
+}
+
+impl std::fmt::Debug for AdminToken {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(if self.digest.is_some() {
+            "AdminToken(<redacted>)"
+        } else {
+            "AdminToken(disabled)"
+        })
+    }
+}
+
+impl AdminToken {
+    /// No token: admin routes are disabled.
+    pub fn disabled() -> Self {
+        AdminToken { digest: None }
+    }
+
+    /// A token (already checked for length and characters by the configuration).
+    pub fn new(token: &str) -> Self {
+        AdminToken {
+            digest: Some(Sha256::digest(token.as_bytes()).into()),
+        }
+    }
+
+    /// Whether a token is configured (admin routes enabled).
+    pub fn is_enabled(&self) -> bool {
+        self.digest.is_some()
+    }
+
+    /// Checks the value of an `Authorization` header (or gRPC `authorization` metadata).
+    pub fn check(&self, authorization: Option<&[u8]>) -> Result<(), ApiError> {
+        let Some(expected) = &self.digest else {
+            return Err(ApiError::new(
+                ErrorKind::Forbidden,
+                "admin routes are disabled on this server: start it with FACEPOSE_ADMIN_TOKEN or \
+                 --admin-token-file to enable retraining, activation and deletion",
+            ));
+        };
+        let Some(value) = authorization else {
+            return Err(unauthenticated(
+                "missing admin token: send Authorization: Bearer <token>",
+            ));
+        };
+        let token = value
+            .strip_prefix(b"Bearer ")
+            .or_else(|| value.strip_prefix(b"bearer "))
+            .ok_or_else(|| {
+                unauthenticated("the Authorization header must be \"Bearer <token>\"")
+            })?;
+        let given: [u8; 32] = Sha256::digest(token.trim_ascii()).into();
+        if bool::from(given.ct_eq(expected)) {
+            Ok(())
+        } else {
+            Err(unauthenticated("invalid admin token"))
+        }
+    }
+}
+
+fn unauthenticated(message: &str) -> ApiError {
+    ApiError::new(ErrorKind::Unauthenticated, message)
+}
+
+/// Checks a token read from the environment or a file: at least [`MIN_TOKEN_LEN`] visible
+/// ASCII characters (what fits in a header without escaping).
+pub fn check_token(token: &str) -> Result<(), String> {
+    if token.len() < MIN_TOKEN_LEN {
+        return Err(format!(
+            "the admin token has {} characters; use at least {MIN_TOKEN_LEN} (e.g. openssl rand -hex 32)",
+            token.len()
+        ));
+    }
+    if !token.bytes().all(|b| b.is_ascii_graphic()) {
+        return Err("the admin token must be visible ASCII characters without spaces".into());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TOKEN: &str = "0123456789abcdef-secret";
+
+    #[test]
+    fn the_matrix() {
+        let off = AdminToken::disabled();
+        let on = AdminToken::new(TOKEN);
+        let bearer = format!("Bearer {TOKEN}");
+        let e = off.check(Some(bearer.as_bytes())).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Forbidden);
+        assert_eq!(on.check(None).unwrap_err().kind, ErrorKind::Unauthenticated);
+        for wrong in [
+            "Bearer nope".to_string(),
+            format!("Basic {TOKEN}"),
+            TOKEN.to_string(),
+            format!("Bearer {TOKEN}x"),
+            format!("Bearer {}", &TOKEN[1..]),
+            "Bearer ".to_string(),
+        ] {
+            let e = on.check(Some(wrong.as_bytes())).unwrap_err();
+            assert_eq!(e.kind, ErrorKind::Unauthenticated, "{wrong}");
+            assert!(!e.message.contains(TOKEN), "{e}");
+        }
+        on.check(Some(bearer.as_bytes())).unwrap();
+        on.check(Some(format!("bearer {TOKEN}").as_bytes()))
+            .unwrap();
+        assert!(!format!("{on:?}").contains(TOKEN));
+    }
+
+    #[test]
+    fn token_rules() {
+        assert!(check_token(TOKEN).is_ok());
+        assert!(check_token("short").unwrap_err().contains("at least 16"));
+        assert!(check_token("with a space in it ok").is_err());
+    }
+}

@@ -1,0 +1,145 @@
+//! Changes of the models folder made through the API: write a new version, activate one
+//! (rollback is activating an older one), delete an inactive one. Each runs its file work on
+//! the blocking pool and leaves the folder valid if the process dies at any point
+//! ([`super::versions`]).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use super::versions::{self, VersionError};
+use super::{
+    DEFAULT_MODEL, Registry, Resolved, ServedModel, blocking, embedded_version, load_resolved,
+    resolve,
+};
+use crate::model::bundle::Bundle;
+use crate::service::errors::{ApiError, ErrorKind};
+
+impl Registry {
+    /// Loads version `version` of model `name`, makes it the folder's active version and
+    /// serves it. The version is loaded before the pointer is written: the pointer never names
+    /// a version that does not load.
+    pub async fn activate(&self, name: &str, version: &str) -> Result<Arc<ServedModel>, ApiError> {
+        let dir = self.require_dir()?.to_path_buf();
+        versions::check_name(name).map_err(version_error)?;
+        let _changes = self.changes.lock().await;
+        let (n, v) = (name.to_string(), version.to_string());
+        let served = blocking(move || -> Result<ServedModel, ApiError> {
+            let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
+            let source = resolve(stored.as_ref(), &n, &v).ok_or_else(|| {
+                version_error(with_embedded(VersionError::NotFound {
+                    name: n.clone(),
+                    version: v.clone(),
+                    existing: stored.as_ref().map(|m| m.ids()).unwrap_or_default(),
+                }))
+            })?;
+            let embedded = matches!(source, Resolved::Embedded);
+            let served = load_resolved(&n, &source).map_err(|e| {
+                ApiError::new(
+                    ErrorKind::Conflict,
+                    format!(
+                        "version {v} of model {n:?} does not load, so it is not activated: {e}"
+                    ),
+                )
+            })?;
+            versions::activate(&dir, &n, &v, embedded).map_err(version_error)?;
+            Ok(served)
+        })
+        .await?;
+        let served = self.install(served);
+        tracing::info!(model = %served.name, version = %served.version, source = %served.source, "version activated");
+        drop(_changes);
+        self.refresh_catalog().await;
+        Ok(served)
+    }
+
+    /// Writes a new version of `name` (see [`versions::write_version`]); `make` builds the
+    /// bundle for the id chosen. Returns the id and the bundle file.
+    pub async fn write_version(
+        &self,
+        name: &str,
+        make: impl FnOnce(&str) -> Result<Bundle, ApiError> + Send + 'static,
+    ) -> Result<(String, PathBuf), ApiError> {
+        let dir = self.require_dir()?.to_path_buf();
+        let n = name.to_string();
+        let reserved = if name == DEFAULT_MODEL {
+            vec![embedded_version().to_string()]
+        } else {
+            vec![]
+        };
+        let mut failure = None;
+        let written = blocking(move || {
+            let reserved: Vec<&str> = reserved.iter().map(String::as_str).collect();
+            versions::write_version(&dir, &n, &reserved, |v| {
+                make(v).map_err(|e| {
+                    let m = e.message.clone();
+                    failure = Some(e);
+                    VersionError::Invalid(m)
+                })
+            })
+            .map_err(|e| failure.take().unwrap_or_else(|| version_error(e)))
+        })
+        .await;
+        self.refresh_catalog().await;
+        written
+    }
+
+    /// Deletes an inactive version of `name`.
+    pub async fn delete(&self, name: &str, version: &str) -> Result<(), ApiError> {
+        let dir = self.require_dir()?.to_path_buf();
+        versions::check_name(name).map_err(version_error)?;
+        let (n, v) = (name.to_string(), version.to_string());
+        blocking(move || {
+            let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
+            let on_disk = stored.as_ref().is_some_and(|m| m.get(&v).is_some());
+            if !on_disk && n == DEFAULT_MODEL && v == embedded_version() {
+                return Err(ApiError::new(
+                    ErrorKind::Conflict,
+                    format!(
+                        "version {v} of model {n:?} is the default model built into the binary; \
+                         it cannot be deleted"
+                    ),
+                ));
+            }
+            versions::delete_version(&dir, &n, &v).map_err(|e| version_error(with_embedded(e)))
+        })
+        .await?;
+        tracing::info!(model = %name, version = %version, "version deleted");
+        self.refresh_catalog().await;
+        Ok(())
+    }
+}
+
+/// A "no such version" error of `default` that also lists the embedded version (the listing
+/// shows it as one).
+fn with_embedded(e: VersionError) -> VersionError {
+    match e {
+        VersionError::NotFound {
+            name,
+            version,
+            mut existing,
+        } if name == DEFAULT_MODEL && !existing.iter().any(|v| v == embedded_version()) => {
+            existing.insert(0, embedded_version().to_string());
+            VersionError::NotFound {
+                name,
+                version,
+                existing,
+            }
+        }
+        e => e,
+    }
+}
+
+/// A versions error as an API error.
+pub fn version_error(e: VersionError) -> ApiError {
+    match e {
+        VersionError::NotFound { .. } => ApiError::new(ErrorKind::NotFound, e.to_string()),
+        VersionError::Active { .. } | VersionError::Legacy { .. } => {
+            ApiError::new(ErrorKind::Conflict, e.to_string())
+        }
+        VersionError::Invalid(m) => ApiError::invalid(m),
+        VersionError::Io { .. } | VersionError::Store(_) => {
+            tracing::error!(error = %e, "models folder");
+            ApiError::internal(format!("models folder: {e}"))
+        }
+    }
+}
