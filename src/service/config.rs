@@ -66,6 +66,17 @@ pub struct ServeArgs {
     /// whitespace is ignored.
     #[arg(long, env = "FACEPOSE_ADMIN_TOKEN_FILE")]
     pub admin_token_file: Option<PathBuf>,
+    /// Largest retraining upload (HTTP body of POST /v1/models; gRPC Retrain stream in all,
+    /// each message at most --max-body), e.g. 64MiB.
+    #[arg(long, env = "FACEPOSE_MAX_UPLOAD", default_value = "64MiB")]
+    pub max_upload: String,
+    /// Time limit for receiving and checking a retraining upload (training itself runs in the
+    /// background), e.g. 60s.
+    #[arg(long, env = "FACEPOSE_UPLOAD_TIMEOUT", default_value = "60s")]
+    pub upload_timeout: String,
+    /// Retraining jobs that may wait while one trains; more uploads get 429 / UNAVAILABLE.
+    #[arg(long, env = "FACEPOSE_MAX_QUEUED_JOBS", default_value_t = 4)]
+    pub max_queued_jobs: usize,
     /// How often the models folder's active pointers are read, so that a version activated by
     /// another replica sharing the folder is served here too, e.g. 2s, 500ms.
     #[arg(long, env = "FACEPOSE_REGISTRY_POLL", default_value = "2s")]
@@ -87,6 +98,7 @@ pub struct Config {
     pub log_format: LogFormat,
     pub log: String,
     pub admin_token: AdminToken,
+    pub max_queued_jobs: usize,
     pub registry_poll: Duration,
 }
 
@@ -98,6 +110,8 @@ pub struct Limits {
     pub request_timeout: Duration,
     pub max_concurrency: usize,
     pub max_streams: usize,
+    pub max_upload: usize,
+    pub upload_timeout: Duration,
 }
 
 /// A flag or variable with an unusable value.
@@ -139,7 +153,16 @@ impl ServeArgs {
                 .map_err(|r| bad("request-timeout", r))?,
             max_concurrency: positive("max-concurrency", self.max_concurrency)?,
             max_streams: positive("max-streams", self.max_streams)?,
+            max_upload: parse_size(&self.max_upload).map_err(|r| bad("max-upload", r))?,
+            upload_timeout: parse_duration(&self.upload_timeout)
+                .map_err(|r| bad("upload-timeout", r))?,
         };
+        if limits.max_upload < 1024 {
+            return Err(bad("max-upload", "must be at least 1KiB"));
+        }
+        if limits.upload_timeout.is_zero() {
+            return Err(bad("upload-timeout", "must be positive"));
+        }
         let registry_poll =
             parse_duration(&self.registry_poll).map_err(|r| bad("registry-poll", r))?;
         if registry_poll < Duration::from_millis(50) {
@@ -167,6 +190,7 @@ impl ServeArgs {
             log_format: self.log_format,
             log: self.log.clone(),
             admin_token: self.admin_token(std::env::var(ADMIN_TOKEN_ENV).ok())?,
+            max_queued_jobs: self.max_queued_jobs,
             registry_poll,
         })
     }
@@ -302,6 +326,7 @@ mod tests {
             (&["--request-timeout", "5 parsecs"][..], "--request-timeout"),
             (&["--request-timeout", "0s"][..], "--request-timeout"),
             (&["--log", "=="][..], "--log"),
+            (&["--max-upload", "1"][..], "--max-upload"),
             (&["--registry-poll", "1ms"][..], "--registry-poll"),
             (
                 &["--admin-token-file", "/nonexistent/token"][..],

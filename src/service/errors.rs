@@ -116,6 +116,11 @@ pub struct ApiError {
     #[serde(rename = "code")]
     pub kind: ErrorKind,
     pub message: String,
+    /// Structured details where a list says more than the message (HTTP only): the validation
+    /// report of a rejected upload.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(value_type = Option<Object>)]
+    pub details: Option<Box<serde_json::Value>>,
 }
 
 impl ApiError {
@@ -123,7 +128,14 @@ impl ApiError {
         ApiError {
             kind,
             message: message.into(),
+            details: None,
         }
+    }
+
+    /// The same error with structured details (sent in HTTP bodies).
+    pub fn with_details(mut self, details: serde_json::Value) -> Self {
+        self.details = Some(Box::new(details));
+        self
     }
 
     pub fn invalid(message: impl Into<String>) -> Self {

@@ -17,12 +17,15 @@ use super::AppState;
 use super::errors::{ApiError, ErrorKind};
 use super::http::{VersionSummary, version_summaries};
 use super::http_registry::versions_response;
+use super::jobs::Job;
 use super::metrics::{self, FaceTally};
 use super::pose::{FacePose, FaceSpec, INLINE_FACES, estimate_face, for_each_face};
 use super::proto::{self, pose_service_server::PoseService};
 use super::registry::{Catalog, ModelSet, ServedModel};
+use super::retrain::{self, chunks::ChunkCollector};
 use super::stream::Session;
 use crate::estimate::Intrinsics;
+use crate::model::validate::ValidationReport;
 
 /// The gRPC service.
 #[derive(Clone, Debug)]
@@ -126,6 +129,43 @@ fn version_message(v: VersionSummary) -> proto::VersionInfo {
         active: v.active,
         served: v.served,
         fixed: v.fixed,
+    }
+}
+
+fn report_message(r: &ValidationReport) -> proto::ValidationReport {
+    proto::ValidationReport {
+        total: r.total as u32,
+        kept: r.kept as u32,
+        dropped: r
+            .dropped
+            .iter()
+            .map(|d| proto::DroppedShape {
+                index: d.index as u32,
+                reason: d.reason.name().to_string(),
+                detail: d.detail.clone(),
+            })
+            .collect(),
+        median_distance: r.median_distance,
+        outlier_threshold: r.outlier_threshold,
+    }
+}
+
+/// A job as its gRPC message.
+pub fn job_message(j: &Job) -> proto::Job {
+    proto::Job {
+        id: j.id.clone(),
+        model: j.model.clone(),
+        state: j.state.name().to_string(),
+        stage: j.stage.map_or("", |s| s.name()).to_string(),
+        progress: j.progress,
+        kind: j.kind.to_string(),
+        uploaded: j.uploaded as u32,
+        activate: j.activate,
+        created: j.created.clone(),
+        updated: j.updated.clone(),
+        validation: j.validation.as_ref().map(report_message),
+        version: j.version.clone().unwrap_or_default(),
+        error: j.error.clone().unwrap_or_default(),
     }
 }
 
@@ -355,6 +395,63 @@ impl PoseService for PoseApi {
             let set = state.registry.snapshot();
             let m = set.get(Some(&name))?;
             Ok(model_info(m, &set, &state.registry.catalog()))
+        })
+        .await
+    }
+
+    async fn retrain(
+        &self,
+        request: Request<Streaming<proto::RetrainChunk>>,
+    ) -> Result<Response<proto::Job>, Status> {
+        let started = Instant::now();
+        let state = self.state.clone();
+        let result: Result<proto::Job, Status> = async {
+            authorize(&state, &request)?;
+            state.registry.require_dir()?;
+            let _permit = self.permit()?;
+            let limits = state.limits;
+            let mut inbound = request.into_inner();
+            let mut chunks = ChunkCollector::new(limits.max_upload);
+            let receive = async {
+                while let Some(chunk) = inbound
+                    .message()
+                    .await
+                    .map_err(|s| inbound_error(s, limits.max_body))?
+                {
+                    chunks.push(chunk)?;
+                }
+                Ok::<_, Status>(())
+            };
+            tokio::time::timeout(limits.upload_timeout, receive)
+                .await
+                .map_err(|_| {
+                    Status::deadline_exceeded(format!(
+                        "the upload took longer than {:?} (--upload-timeout)",
+                        limits.upload_timeout
+                    ))
+                })??;
+            let raw = chunks.finish()?;
+            let prepared = tokio::task::spawn_blocking(move || retrain::prepare(raw))
+                .await
+                .map_err(|e| Status::internal(format!("upload task failed: {e}")))??;
+            let job = retrain::job::submit(&state, prepared)?;
+            Ok(job_message(&job))
+        }
+        .await;
+        let code = result
+            .as_ref()
+            .map_or_else(|s| s.code(), |_| tonic::Code::Ok);
+        metrics::grpc_request("Retrain", code, Some(started.elapsed()));
+        result.map(Response::new)
+    }
+
+    async fn get_job(
+        &self,
+        request: Request<proto::GetJobRequest>,
+    ) -> Result<Response<proto::Job>, Status> {
+        let state = self.state.clone();
+        unary(self, "GetJob", async move {
+            Ok(job_message(&state.jobs.get(&request.into_inner().id)?))
         })
         .await
     }

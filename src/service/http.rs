@@ -21,6 +21,7 @@ use utoipa::{OpenApi, ToSchema};
 use super::AppState;
 use super::errors::{ApiError, ErrorBody, ErrorKind};
 use super::http_registry::{self, BearerAuth};
+use super::http_retrain;
 use super::metrics::{self, FaceTally};
 use super::pose::{FaceSpec, estimate_face, for_each_face, run_maybe_blocking};
 use super::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
@@ -341,7 +342,7 @@ pub fn model_summary(m: &ServedModel, set: &ModelSet, catalog: &Catalog) -> Mode
 /// batches go to the blocking pool.
 const INLINE_BODY: usize = 16 * 1024;
 
-fn require_json(headers: &HeaderMap) -> Result<(), ApiError> {
+pub(super) fn require_json(headers: &HeaderMap) -> Result<(), ApiError> {
     let Some(ct) = headers.get(header::CONTENT_TYPE) else {
         return Err(ApiError::new(
             ErrorKind::UnsupportedMediaType,
@@ -367,16 +368,25 @@ fn require_json(headers: &HeaderMap) -> Result<(), ApiError> {
 
 /// The body, up to `limit` bytes (413 above).
 async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Bytes, ApiError> {
+    read_body_limited(headers, body, limit, "--max-body", "split the batch").await
+}
+
+/// The body, up to `limit` bytes; the 413 message names the flag and what to do.
+pub(super) async fn read_body_limited(
+    headers: &HeaderMap,
+    body: Body,
+    limit: usize,
+    flag: &str,
+    hint: &str,
+) -> Result<Bytes, ApiError> {
     let too_large = |len: Option<u64>| {
         ApiError::new(
             ErrorKind::PayloadTooLarge,
             match len {
                 Some(n) => format!(
-                    "request body of {n} bytes is over the limit of {limit} bytes (--max-body); split the batch"
+                    "request body of {n} bytes is over the limit of {limit} bytes ({flag}); {hint}"
                 ),
-                None => format!(
-                    "request body is over the limit of {limit} bytes (--max-body); split the batch"
-                ),
+                None => format!("request body is over the limit of {limit} bytes ({flag}); {hint}"),
             },
         )
     };
@@ -436,19 +446,7 @@ fn empty_body() -> ApiError {
 fn json_error<T: DeserializeOwned>(bytes: &[u8], e: serde_json::Error) -> ApiError {
     use serde_json::error::Category;
     match e.classify() {
-        Category::Data => {
-            // Parse again, tracking the path, only on this error path.
-            let de = &mut serde_json::Deserializer::from_slice(bytes);
-            let path = match serde_path_to_error::deserialize::<_, T>(de) {
-                Err(pe) => pe.path().to_string(),
-                Ok(_) => ".".into(),
-            };
-            if path == "." {
-                ApiError::invalid(e.to_string())
-            } else {
-                ApiError::invalid(format!("{path}: {e}"))
-            }
-        }
+        Category::Data => ApiError::invalid(format!("{}{e}", error_path::<T>(bytes))),
         Category::Syntax | Category::Eof | Category::Io => {
             let msg = e.to_string();
             if bytes.iter().all(u8::is_ascii_whitespace) {
@@ -457,13 +455,25 @@ fn json_error<T: DeserializeOwned>(bytes: &[u8], e: serde_json::Error) -> ApiErr
                 ApiError::invalid(format!("a number is too large for a 64-bit float ({msg})"))
             } else if non_finite_literal_at(bytes, e.line(), e.column()) {
                 ApiError::invalid(format!(
-                    "NaN and Infinity are not JSON numbers ({msg}): coordinates must be finite; \
-                     send null for a missing landmark"
+                    "{}NaN and Infinity are not JSON numbers ({msg}): coordinates must be finite; \
+                     send null for a missing landmark (and leave out a 3D shape with a point you \
+                     do not have)",
+                    error_path::<T>(bytes)
                 ))
             } else {
                 ApiError::new(ErrorKind::MalformedJson, format!("malformed JSON: {msg}"))
             }
         }
+    }
+}
+
+/// `"path.to[3].value: "` where parsing `bytes` as `T` fails (empty at the top level). Parses
+/// again, tracking the path, only on this error path.
+fn error_path<T: DeserializeOwned>(bytes: &[u8]) -> String {
+    let de = &mut serde_json::Deserializer::from_slice(bytes);
+    match serde_path_to_error::deserialize::<_, T>(de) {
+        Err(pe) if pe.path().to_string() != "." => format!("{}: ", pe.path()),
+        _ => String::new(),
     }
 }
 
@@ -743,7 +753,7 @@ pub async fn openapi(State(st): State<SharedState>) -> Response {
             Rz(roll), given row-major. The same service answers gRPC (facepose.v1.PoseService) \
             on the same port."
     ),
-    paths(pose, pose_batch, list_models, get_model,
+    paths(pose, pose_batch, list_models, get_model, http_retrain::retrain, http_retrain::get_job,
         http_registry::list_versions, http_registry::version_action, http_registry::delete_version,
         healthz, readyz, metrics_text, openapi),
     components(schemas(ErrorBody, ApiError, ErrorKind)),
@@ -751,7 +761,7 @@ pub async fn openapi(State(st): State<SharedState>) -> Response {
     tags(
         (name = "pose", description = "Pose estimation"),
         (name = "models", description = "Loaded model bundles"),
-        (name = "registry", description = "Model versions, activation and deletion (admin routes need a bearer token)"),
+        (name = "registry", description = "Retraining, model versions, activation (admin routes need a bearer token)"),
         (name = "operations", description = "Health, readiness, metrics")
     )
 )]
@@ -773,8 +783,9 @@ pub fn router(state: SharedState) -> Router {
     Router::new()
         .route("/v1/pose", post(pose))
         .route("/v1/pose:batch", post(pose_batch))
-        .route("/v1/models", get(list_models))
+        .route("/v1/models", get(list_models).post(http_retrain::retrain))
         .route("/v1/models/{name}", get(get_model))
+        .route("/v1/models/jobs/{id}", get(http_retrain::get_job))
         .route(
             "/v1/models/{name}/versions",
             get(http_registry::list_versions),
@@ -793,12 +804,18 @@ pub fn router(state: SharedState) -> Router {
 }
 
 /// Refuses at once above the concurrency limit (429) and ends requests at the time limit
-/// (503). Estimation of a batch also stops at the deadline (see [`for_each_face`]).
+/// (503; `--upload-timeout` for retraining uploads). Estimation of a batch also stops at the
+/// deadline (see [`for_each_face`]).
 async fn limits(State(st): State<SharedState>, mut req: Request, next: Next) -> Response {
     let Ok(_permit) = st.permits.clone().try_acquire_owned() else {
         return ApiError::overloaded(st.limits.max_concurrency).into_response();
     };
-    let timeout = st.limits.request_timeout;
+    let upload = req.method() == HttpMethod::POST && req.uri().path() == "/v1/models";
+    let timeout = if upload {
+        st.limits.upload_timeout
+    } else {
+        st.limits.request_timeout
+    };
     req.extensions_mut()
         .insert(Deadline(Instant::now() + timeout));
     match tokio::time::timeout(timeout, next.run(req)).await {
@@ -850,6 +867,7 @@ fn route_label(path: Option<&MatchedPath>) -> &'static str {
         Some("/v1/pose:batch") => "/v1/pose:batch",
         Some("/v1/models") => "/v1/models",
         Some("/v1/models/{name}") => "/v1/models/{name}",
+        Some("/v1/models/jobs/{id}") => "/v1/models/jobs/{id}",
         Some("/v1/models/{name}/versions") => "/v1/models/{name}/versions",
         Some("/v1/models/{name}/versions/{version}") => "/v1/models/{name}/versions/{version}",
         Some("/healthz") => "/healthz",
@@ -992,6 +1010,7 @@ mod tests {
             "/v1/pose:batch",
             "/v1/models",
             "/v1/models/{name}",
+            "/v1/models/jobs/{id}",
             "/v1/models/{name}/versions",
             "/v1/models/{name}/versions/{version}",
             "/healthz",

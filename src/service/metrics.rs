@@ -15,6 +15,8 @@
 //! | `facepose_model_swaps_total` | counter | `name` |
 //! | `facepose_model_load_failures_total` | counter | `name` (the models folder entry) |
 //! | `facepose_model_sync_problems` | gauge | (models whose active version is not served here) |
+//! | `facepose_retrain_jobs_total` | counter | `outcome` (`succeeded`, `failed`) |
+//! | `facepose_retrain_jobs_waiting` | gauge | |
 //! | `facepose_ready` | gauge | |
 
 use std::time::Duration;
@@ -99,6 +101,14 @@ impl Metrics {
         describe_gauge!(
             "facepose_model_sync_problems",
             "Models folder entries whose active version this replica cannot serve (listed by /readyz)"
+        );
+        describe_counter!(
+            "facepose_retrain_jobs_total",
+            "Finished retraining jobs by outcome"
+        );
+        describe_gauge!(
+            "facepose_retrain_jobs_waiting",
+            "Retraining jobs queued or running"
         );
         Metrics { handle }
     }
@@ -211,6 +221,7 @@ pub fn models(set: &ModelSet) {
         model_info_gauge(m, set.default_name()).set(1.0);
     }
     sync_problems(0);
+    retrain_jobs_waiting(0);
 }
 
 fn model_info_gauge(m: &ServedModel, default: &str) -> metrics::Gauge {
@@ -242,9 +253,18 @@ pub fn sync_problems(n: usize) {
     gauge!("facepose_model_sync_problems").set(n as f64);
 }
 
+pub fn retrain_job_finished(outcome: &'static str) {
+    counter!("facepose_retrain_jobs_total", "outcome" => outcome).increment(1);
+}
+
+pub fn retrain_jobs_waiting(n: usize) {
+    gauge!("facepose_retrain_jobs_waiting").set(n as f64);
+}
+
 fn status_label(status: u16) -> &'static str {
     match status {
         200 => "200",
+        202 => "202",
         204 => "204",
         400 => "400",
         401 => "401",

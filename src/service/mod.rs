@@ -14,9 +14,12 @@ pub mod grpc;
 pub mod health;
 pub mod http;
 pub mod http_registry;
+pub mod http_retrain;
+pub mod jobs;
 pub mod metrics;
 pub mod pose;
 pub mod registry;
+pub mod retrain;
 pub mod shutdown;
 pub mod stream;
 
@@ -50,6 +53,8 @@ pub struct AppState {
     pub registry: Arc<Registry>,
     /// The admin bearer token (retraining, activation, deletion).
     pub admin: auth::AdminToken,
+    /// Retraining jobs.
+    pub jobs: jobs::Jobs,
     pub limits: Limits,
     pub lifecycle: Lifecycle,
     pub metrics: metrics::Metrics,
@@ -160,6 +165,7 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     let state = Arc::new(AppState {
         registry,
         admin: cfg.admin_token.clone(),
+        jobs: jobs::Jobs::new(cfg.max_queued_jobs),
         limits: cfg.limits,
         lifecycle: Lifecycle::default(),
         metrics,

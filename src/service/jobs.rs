@@ -1,0 +1,306 @@
+//! Retraining jobs: an in-memory table of what each upload became (state, progress, the
+//! validation report, the new version, the reason of a failure), and the trainer's queue.
+//!
+//! - One training runs at a time (a permit of a fair semaphore: jobs start in the order they
+//!   were accepted); training runs on the blocking pool, off the request path.
+//! - At most `--max-queued-jobs` jobs wait for the trainer; an upload beyond that is refused
+//!   at once with 429 / UNAVAILABLE (retry later) rather than holding its shapes in memory.
+//! - Finished jobs are kept for [`JOB_TTL`], and at most [`MAX_JOBS`] jobs are kept in all
+//!   (the oldest finished ones go first).
+//! - Job ids are per replica: the table is in memory, so a job is visible only on the replica
+//!   that accepted its upload, and is lost if that replica restarts (the versions it wrote are
+//!   not: they are in the models folder).
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+
+use super::errors::{ApiError, ErrorKind};
+use crate::model::validate::ValidationReport;
+
+/// How long a finished job stays visible.
+pub const JOB_TTL: Duration = Duration::from_secs(3600);
+/// The most jobs kept.
+pub const MAX_JOBS: usize = 256;
+
+/// Where a job is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobState {
+    /// Accepted, waiting for the trainer (one job trains at a time).
+    Queued,
+    /// Working: see `stage` and `progress`.
+    Running,
+    /// Done: the new version is written (`version`) and, if `activate` was set, active.
+    Succeeded,
+    /// Done: see `error` (and `validation` for the shapes that were dropped).
+    Failed,
+}
+
+impl JobState {
+    /// The name on the wire.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Succeeded => "succeeded",
+            JobState::Failed => "failed",
+        }
+    }
+
+    /// Succeeded or failed.
+    pub fn is_finished(self) -> bool {
+        matches!(self, JobState::Succeeded | JobState::Failed)
+    }
+}
+
+/// What a running job is doing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JobStage {
+    /// Multi-view sets: structure from motion and validation of the rebuilt shapes.
+    Validating,
+    /// Mean shape, visibility, regressions.
+    Training,
+    /// Writing the version into the models folder.
+    Writing,
+    /// Loading the version back and making it the active one.
+    Activating,
+}
+
+impl JobStage {
+    /// The name on the wire.
+    pub fn name(self) -> &'static str {
+        match self {
+            JobStage::Validating => "validating",
+            JobStage::Training => "training",
+            JobStage::Writing => "writing",
+            JobStage::Activating => "activating",
+        }
+    }
+}
+
+/// A job as the API shows it.
+#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+pub struct Job {
+    /// 32 hex digits, random.
+    pub id: String,
+    /// The model being retrained.
+    pub model: String,
+    pub state: JobState,
+    /// While running: what it is doing.
+    pub stage: Option<JobStage>,
+    /// 0 to 1, by stage (validation to 0.3, training to 0.85, writing and activating to 1).
+    pub progress: f64,
+    /// `shapes` (3D) or `subjects` (multi-view).
+    pub kind: &'static str,
+    /// Shapes or subjects uploaded.
+    pub uploaded: usize,
+    /// Whether the new version is activated when written.
+    pub activate: bool,
+    /// RFC 3339 times.
+    pub created: String,
+    pub updated: String,
+    /// Kept and dropped shapes (subjects), with the reason of each drop. For 3D shapes it is
+    /// there from the start; for multi-view sets once structure from motion has run.
+    #[schema(value_type = Option<Object>)]
+    pub validation: Option<ValidationReport>,
+    /// The version written (also on a job that failed to activate it).
+    pub version: Option<String>,
+    /// Why the job failed: what to fix.
+    pub error: Option<String>,
+}
+
+#[derive(Debug)]
+struct Entry {
+    job: Job,
+    finished: Option<Instant>,
+}
+
+/// The job table and the trainer's queue.
+#[derive(Debug)]
+pub struct Jobs {
+    table: Mutex<BTreeMap<String, Entry>>,
+    trainer: Arc<Semaphore>,
+    max_queued: usize,
+}
+
+/// The current time, RFC 3339, UTC.
+pub fn now_rfc3339() -> String {
+    time::OffsetDateTime::now_utc()
+        .format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_default()
+}
+
+impl Jobs {
+    /// A table whose queue holds at most `max_queued` jobs besides the one training.
+    pub fn new(max_queued: usize) -> Self {
+        Jobs {
+            table: Mutex::new(BTreeMap::new()),
+            trainer: Arc::new(Semaphore::new(1)),
+            max_queued,
+        }
+    }
+
+    fn table(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, Entry>> {
+        self.table.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Registers a new job (state `queued`), or refuses it when the queue is full.
+    pub fn create(
+        &self,
+        model: &str,
+        kind: &'static str,
+        uploaded: usize,
+        activate: bool,
+        validation: Option<ValidationReport>,
+    ) -> Result<Job, ApiError> {
+        let mut table = self.table();
+        let now = Instant::now();
+        table.retain(|_, e| e.finished.is_none_or(|t| now.duration_since(t) < JOB_TTL));
+        let waiting = table.values().filter(|e| e.finished.is_none()).count();
+        if waiting > self.max_queued {
+            return Err(ApiError::new(
+                ErrorKind::Overloaded,
+                format!(
+                    "{waiting} retraining jobs are already queued or running (--max-queued-jobs \
+                     {}); retry when one has finished",
+                    self.max_queued
+                ),
+            ));
+        }
+        while table.len() >= MAX_JOBS {
+            let oldest = table
+                .iter()
+                .filter_map(|(id, e)| e.finished.map(|t| (t, id.clone())))
+                .min();
+            match oldest {
+                Some((_, id)) => {
+                    table.remove(&id);
+                }
+                None => break,
+            }
+        }
+        let id = format!(
+            "{:016x}{:016x}",
+            rand::random::<u64>(),
+            rand::random::<u64>()
+        );
+        let stamp = now_rfc3339();
+        let job = Job {
+            id: id.clone(),
+            model: model.into(),
+            state: JobState::Queued,
+            stage: None,
+            progress: 0.0,
+            kind,
+            uploaded,
+            activate,
+            created: stamp.clone(),
+            updated: stamp,
+            validation,
+            version: None,
+            error: None,
+        };
+        table.insert(
+            id,
+            Entry {
+                job: job.clone(),
+                finished: None,
+            },
+        );
+        super::metrics::retrain_jobs_waiting(waiting + 1);
+        Ok(job)
+    }
+
+    /// The job `id`.
+    pub fn get(&self, id: &str) -> Result<Job, ApiError> {
+        self.table().get(id).map(|e| e.job.clone()).ok_or_else(|| {
+            ApiError::new(
+                ErrorKind::NotFound,
+                format!(
+                    "unknown job {id:?}: job ids are per replica and kept for an hour after the \
+                     job ends; ask the replica that accepted the upload (GET /v1/models lists \
+                     the versions every replica sees)"
+                ),
+            )
+        })
+    }
+
+    /// Changes a job (and its `updated` time); a finished job starts its time to live.
+    pub fn update(&self, id: &str, f: impl FnOnce(&mut Job)) {
+        let mut table = self.table();
+        if let Some(e) = table.get_mut(id) {
+            f(&mut e.job);
+            e.job.updated = now_rfc3339();
+            if e.job.state.is_finished() && e.finished.is_none() {
+                e.finished = Some(Instant::now());
+                super::metrics::retrain_job_finished(e.job.state.name());
+            }
+        }
+        let waiting = table.values().filter(|e| e.finished.is_none()).count();
+        super::metrics::retrain_jobs_waiting(waiting);
+    }
+
+    /// The job is running `stage`, `progress` done.
+    pub fn stage(&self, id: &str, stage: JobStage, progress: f64) {
+        self.update(id, |j| {
+            j.state = JobState::Running;
+            j.stage = Some(stage);
+            j.progress = progress;
+        });
+    }
+
+    /// The job has ended well.
+    pub fn succeed(&self, id: &str) {
+        self.update(id, |j| {
+            j.state = JobState::Succeeded;
+            j.stage = None;
+            j.progress = 1.0;
+        });
+    }
+
+    /// The job has ended with `error`.
+    pub fn fail(&self, id: &str, error: String) {
+        self.update(id, |j| {
+            j.state = JobState::Failed;
+            j.stage = None;
+            j.error = Some(error);
+        });
+    }
+
+    /// Waits for the trainer (jobs are served in order).
+    pub async fn trainer(&self) -> Option<OwnedSemaphorePermit> {
+        self.trainer.clone().acquire_owned().await.ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_queue_is_bounded_and_jobs_finish() {
+        let jobs = Jobs::new(1);
+        let a = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let b = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let e = jobs.create("m", "shapes", 10, true, None).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Overloaded);
+        assert!(e.message.contains("--max-queued-jobs 1"), "{e}");
+        jobs.stage(&a.id, JobStage::Training, 0.5);
+        assert_eq!(jobs.get(&a.id).unwrap().state, JobState::Running);
+        jobs.fail(&a.id, "no".into());
+        let c = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert_ne!(b.id, c.id);
+        let failed = jobs.get(&a.id).unwrap();
+        assert_eq!((failed.state, failed.stage), (JobState::Failed, None));
+        assert_eq!(failed.error.as_deref(), Some("no"));
+        jobs.succeed(&b.id);
+        assert_eq!(jobs.get(&b.id).unwrap().progress, 1.0);
+        assert_eq!(jobs.get("nope").unwrap_err().kind, ErrorKind::NotFound);
+        assert_eq!(a.id.len(), 32);
+    }
+}

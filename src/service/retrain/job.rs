@@ -1,0 +1,206 @@
+//! A retraining job from an accepted upload to its end: (structure from motion and validation
+//! for multi-view sets), training on the blocking pool, the new version written into the
+//! models folder and, unless the upload said otherwise, activated. Every outcome is recorded in
+//! the job table; a failure's message says what went wrong and what to do.
+
+use std::sync::Arc;
+
+use tracing::Instrument;
+
+use super::{JobSpec, Prepared, Work, too_few};
+use crate::model::bundle::{Bundle, Provenance, SourceFile};
+use crate::model::validate::{
+    Dropped, ValidatedShapes, ValidationOptions, reconstruct_subject, validate_shapes,
+};
+use crate::model::{BasisSource, train_from_population};
+use crate::service::AppState;
+use crate::service::errors::ApiError;
+use crate::service::jobs::{Job, JobStage, now_rfc3339};
+use crate::shape::Shape2;
+
+/// Registers an accepted upload as a job (429 when the queue is full) and starts it.
+pub fn submit(state: &Arc<AppState>, p: Prepared) -> Result<Job, ApiError> {
+    let spec = p.spec;
+    let job = state.jobs.create(
+        &spec.model,
+        spec.kind,
+        spec.uploaded,
+        spec.activate,
+        match &p.work {
+            Work::Shapes(v) => Some(v.report.clone()),
+            Work::Subjects { .. } => None,
+        },
+    )?;
+    tracing::info!(job = %job.id, model = %spec.model, kind = spec.kind, uploaded = spec.uploaded,
+        "retraining job accepted");
+    // The job outlives the request: its own span, not a child of the request's.
+    let span = tracing::info_span!(parent: None, "job", id = %job.id, model = %spec.model);
+    tokio::spawn(run(state.clone(), job.id.clone(), Arc::new(spec), p.work).instrument(span));
+    Ok(job)
+}
+
+/// Rebuilds the subjects by structure from motion and validates the shapes; indices in the
+/// report are the subjects' in the upload.
+fn reconstruct_all(
+    spec: &JobSpec,
+    views: &[(usize, Vec<Shape2>)],
+    mut dropped: Vec<Dropped>,
+    progress: impl Fn(f64),
+) -> Result<ValidatedShapes, ApiError> {
+    let mut shapes = Vec::new();
+    let mut index = Vec::new();
+    for (done, (k, v)) in views.iter().enumerate() {
+        match reconstruct_subject(&spec.scheme, v) {
+            Ok(s) => {
+                shapes.push(s);
+                index.push(*k);
+            }
+            Err((reason, detail)) => dropped.push(Dropped {
+                index: *k,
+                reason,
+                detail,
+            }),
+        }
+        progress((done + 1) as f64 / views.len() as f64);
+    }
+    let opts = ValidationOptions {
+        scale_free: true,
+        ..spec.options.validation
+    };
+    let mut v = validate_shapes(&spec.scheme, &shapes, &opts)?;
+    for d in &mut v.report.dropped {
+        d.index = index[d.index];
+    }
+    v.indices = v.indices.iter().map(|&i| index[i]).collect();
+    dropped.append(&mut v.report.dropped);
+    dropped.sort_by_key(|d| d.index);
+    v.report.dropped = dropped;
+    v.report.total = spec.uploaded;
+    Ok(v)
+}
+
+/// Runs an accepted job to its end (after the jobs accepted before it); every outcome is
+/// recorded in the job table.
+pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Work) {
+    let Some(_trainer) = state.jobs.trainer().await else {
+        return;
+    };
+    match steps(&state, &id, &spec, work).await {
+        Ok(version) => {
+            tracing::info!(version = %version, activated = spec.activate, "retraining job succeeded");
+            state.jobs.succeed(&id);
+        }
+        Err(e) => {
+            tracing::warn!(error = %e.message, "retraining job failed");
+            state.jobs.fail(&id, e.message);
+        }
+    }
+}
+
+/// The job's steps; the version written.
+async fn steps(
+    state: &Arc<AppState>,
+    id: &str,
+    spec: &Arc<JobSpec>,
+    work: Work,
+) -> Result<String, ApiError> {
+    let jobs = &state.jobs;
+    let validated = match work {
+        Work::Shapes(v) => v,
+        Work::Subjects { views, dropped } => {
+            jobs.stage(id, JobStage::Validating, 0.0);
+            let (st, jid, sp) = (state.clone(), id.to_string(), spec.clone());
+            let v = blocking(move || {
+                reconstruct_all(&sp, &views, dropped, |f| {
+                    st.jobs.update(&jid, |j| j.progress = 0.3 * f);
+                })
+            })
+            .await?;
+            jobs.update(id, |j| j.validation = Some(v.report.clone()));
+            if v.report.kept < spec.options.min_shapes {
+                return Err(too_few(&v.report, "subject", spec.options.min_shapes));
+            }
+            v
+        }
+    };
+    jobs.stage(id, JobStage::Training, 0.3);
+    let sp = spec.clone();
+    let kept = validated.shapes.len();
+    let model = blocking(move || {
+        let basis = BasisSource::Pca(sp.options.components);
+        train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
+            .map_err(|e| ApiError::invalid(format!("training failed: {e}")))
+    })
+    .await?;
+    jobs.stage(id, JobStage::Writing, 0.85);
+    let (sp, job_id) = (spec.clone(), id.to_string());
+    let (version, _) = state
+        .registry
+        .write_version(&spec.model, move |version| {
+            Bundle::from_model(
+                &model,
+                &sp.options.train,
+                &sp.model,
+                version,
+                &now_rfc3339(),
+                provenance(&sp, &job_id, kept),
+            )
+            .map_err(|e| ApiError::internal(format!("the trained model has no bundle: {e}")))
+        })
+        .await?;
+    jobs.update(id, |j| j.version = Some(version.clone()));
+    if spec.activate {
+        jobs.stage(id, JobStage::Activating, 0.9);
+        state
+            .registry
+            .activate(&spec.model, &version)
+            .await
+            .map_err(|e| {
+                ApiError::new(
+                    e.kind,
+                    format!(
+                        "version {version} was written but not activated: {}; activate it or \
+                         another version through the API",
+                        e.message
+                    ),
+                )
+            })?;
+    }
+    Ok(version)
+}
+
+fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
+    let basis = if spec.options.components == 0 {
+        "none".to_string()
+    } else {
+        format!(
+            "up to {} principal components of the shapes",
+            spec.options.components
+        )
+    };
+    let mut notes = format!(
+        "retrained through the service (job {job}) from {} uploaded {} ({kept} kept after \
+         validation); mean by generalized Procrustes analysis; shape basis: {basis}",
+        spec.uploaded, spec.kind
+    );
+    if !spec.notes.is_empty() {
+        notes = format!("{}; {notes}", spec.notes);
+    }
+    Provenance {
+        sources: vec![SourceFile {
+            path: format!("upload of job {job}"),
+            sha256: spec.sha256.clone(),
+            shapes: spec.uploaded,
+        }],
+        command: spec.origin.to_string(),
+        notes,
+    }
+}
+
+async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::internal(format!("retraining task failed: {e}")))?
+}
