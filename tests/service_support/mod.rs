@@ -31,12 +31,24 @@ impl Server {
 
     /// As [`Server::start`], in a working directory.
     pub fn start_in(args: &[&str], dir: Option<&std::path::Path>) -> Server {
+        Self::start_with(args, dir, &[])
+    }
+
+    /// As [`Server::start_in`], with environment variables.
+    pub fn start_with(
+        args: &[&str],
+        dir: Option<&std::path::Path>,
+        envs: &[(&str, &str)],
+    ) -> Server {
         let started = Instant::now();
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_facepose"));
         cmd.args(["serve", "--addr", "127.0.0.1:0", "--log", "info"])
             .args(args)
             .env_remove("FACEPOSE_ADDR")
             .env_remove("FACEPOSE_LOG_FORMAT")
+            .env_remove("FACEPOSE_ADMIN_TOKEN")
+            .env_remove("FACEPOSE_ADMIN_TOKEN_FILE")
+            .envs(envs.iter().copied())
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::piped());
@@ -99,6 +111,12 @@ impl Server {
 
     pub fn pid(&self) -> u32 {
         self.child.id()
+    }
+
+    /// Kills the process with SIGKILL and waits for it.
+    pub fn kill9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 
     /// Sends SIGTERM.
