@@ -55,6 +55,8 @@ run /dev/null "$paper_cmd"
 run /dev/null "$real_cmd"
 run docs/results/hpr.md "$hpr_cmd"
 run docs/results/sfm.md "$sfm_cmd"
+# The convention picture of the README (drawn from the code's own convention).
+run /dev/null "cargo run --release --quiet --example convention docs/convention.png"
 
 # Criterion prints each benchmark's name and its time line; keep those.
 bench_lines() {

@@ -539,6 +539,12 @@ async fn bad_input_says_what_to_fix() {
             .unwrap()
             .contains("over the limit of 65536 bytes (--max-body)")
     );
+    // Declared far over the limit, or with `Expect: 100-continue`: answered before the body.
+    for extra in ["", "Expect: 100-continue\r\n"] {
+        let (s, text) = raw_head_only_post(server.addr, "/v1/pose", 50_000_000, extra);
+        assert_eq!(s, 413, "{extra}: {text}");
+        assert!(text.contains("50000000 bytes is over the limit"), "{text}");
+    }
     let (s, text) = raw_chunked_post(server.addr, "/v1/pose", &[&[b' '; 40_000][..]; 3]);
     assert_eq!(s, 413, "{text}");
     assert!(text.contains("over the limit of 65536 bytes"), "{text}");

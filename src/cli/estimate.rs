@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
-use facepose::estimate::{Method, estimate};
+use facepose::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
 use facepose::record::{Landmarks, PoseRecord, shape_from_points};
 use facepose::shape::Shape2;
 use serde::Deserialize;
@@ -39,10 +39,42 @@ pub struct EstimateArgs {
     model: Option<PathBuf>,
     #[arg(long, value_enum, default_value_t = Format::Auto)]
     format: Format,
+    /// Camera intrinsics `fx,fy,cx,cy` (pixels) for every face: the fit methods then refine
+    /// the pose under perspective and report the face's position. A JSON line's own
+    /// `"camera": {"fx": .., "fy": .., "cx": .., "cy": ..}` takes precedence.
+    #[arg(long, value_parser = parse_camera)]
+    camera: Option<Intrinsics>,
+    /// How the landmarks were made: `projected` (3D-style: hidden points are where they would
+    /// project) or `contour` (2D-style: hidden jaw points on the visible outline). A JSON
+    /// line's own `"landmark_style"` takes precedence.
+    #[arg(long, default_value = "projected")]
+    landmark_style: String,
+}
+
+fn parse_camera(s: &str) -> Result<Intrinsics, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("camera: {e} (expected fx,fy,cx,cy)"))?;
+    let [fx, fy, cx, cy] = v[..] else {
+        return Err(format!("camera: {} numbers, expected fx,fy,cx,cy", v.len()));
+    };
+    let k = Intrinsics { fx, fy, cx, cy };
+    k.validate().map_err(|e| e.to_string())?;
+    Ok(k)
+}
+
+/// What a line may override.
+#[derive(Default)]
+struct LineOptions {
+    camera: Option<Intrinsics>,
+    style: Option<LandmarkStyle>,
 }
 
 pub fn run(a: EstimateArgs) -> Result<(), CliError> {
     let method: Method = a.method.parse()?;
+    let style: LandmarkStyle = a.landmark_style.parse()?;
     let (_, model) = super::load_model(a.model.as_deref())?;
     let subset = model.subset(&a.scheme)?;
     let n = subset.scheme.len();
@@ -91,12 +123,18 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                     csv_has_id = Some(line.split(',').count() == 2 * n + 1);
                     continue;
                 }
-                parse_csv(&line, n, csv_has_id)
+                let (id, shape) = parse_csv(&line, n, csv_has_id);
+                (id, shape.map(|s| (s, LineOptions::default())))
             }
             _ => parse_jsonl(&line),
         };
-        let result = parsed.and_then(|shape| {
-            estimate(&model, &a.scheme, &shape, method).map_err(|e| e.to_string())
+        let result = parsed.and_then(|(shape, line_opts)| {
+            let opts = EstimateOptions {
+                method,
+                camera: line_opts.camera.or(a.camera),
+                style: line_opts.style.unwrap_or(style),
+            };
+            estimate_with(&model, &a.scheme, &shape, &opts).map_err(|e| e.to_string())
         });
         let value = match result {
             Ok(e) => {
@@ -134,7 +172,7 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
 /// One JSON Lines record: `{"landmarks": [[x, y] | null, ...], "id": ...}`.
 /// The landmarks are parsed by [`Landmarks`] (shared with the service); their count is checked
 /// against the scheme by the estimator.
-fn parse_jsonl(line: &str) -> (Option<Value>, Result<Shape2, String>) {
+fn parse_jsonl(line: &str) -> (Option<Value>, Result<(Shape2, LineOptions), String>) {
     let v: Value = match serde_json::from_str(line) {
         Ok(v) => v,
         Err(e) => return (None, Err(format!("not valid JSON: {e}"))),
@@ -152,7 +190,23 @@ fn parse_jsonl(line: &str) -> (Option<Value>, Result<Shape2, String>) {
             .map_err(|e| format!("\"landmarks\": {e}"))
             .and_then(|l| l.to_shape().map_err(|e| e.to_string())),
     };
-    (id, shape)
+    let opts = (|| {
+        let camera = match v.get("camera") {
+            None | Some(Value::Null) => None,
+            Some(c) => Some(Intrinsics::deserialize(c).map_err(|e| {
+                format!("\"camera\": {e} (expected {{\"fx\", \"fy\", \"cx\", \"cy\"}})")
+            })?),
+        };
+        let style = match v.get("landmark_style") {
+            None | Some(Value::Null) => None,
+            Some(Value::String(s)) => Some(s.parse::<LandmarkStyle>().map_err(|e| e.to_string())?),
+            Some(other) => {
+                return Err(format!("\"landmark_style\" must be a string, got {other}"));
+            }
+        };
+        Ok(LineOptions { camera, style })
+    })();
+    (id, shape.and_then(|s| opts.map(|o| (s, o))))
 }
 
 /// One CSV row: `[id,]x0,y0,...,x{n-1},y{n-1}`, empty cells for a missing point.

@@ -68,10 +68,25 @@ pub fn synthetic_views(
                 .iter()
                 .map(|x| cam.project(x) + Vector2::new(noise.sample(rng), noise.sample(rng)))
                 .collect();
-            // Disjoint missing sets per view keep every point in at least four views.
-            Ok(Shape2::full(pts)?.with_missing((0..missing).map(|i| (k * missing + i * 5) % n)))
+            // Consecutive blocks, disjoint while 5·missing <= n: every point stays in four views.
+            Ok(Shape2::full(pts)?.with_missing((0..missing).map(|i| (k * missing + i) % n)))
         })
         .collect()
+}
+
+/// The distance between the outer eye corners: of each eye's points, the one farthest from the
+/// other eye's centre (the eye point itself for a one-point eye).
+fn outer_eye_distance(shape: &[Vector3<f64>], left: &[usize], right: &[usize]) -> f64 {
+    let centre = |eye: &[usize]| {
+        eye.iter().map(|&i| shape[i]).sum::<Vector3<f64>>() / eye.len().max(1) as f64
+    };
+    let outer = |eye: &[usize], other: Vector3<f64>| {
+        eye.iter()
+            .map(|&i| shape[i])
+            .max_by(|a, b| (a - other).norm().total_cmp(&(b - other).norm()))
+            .unwrap_or(other)
+    };
+    (outer(left, centre(right)) - outer(right, centre(left))).norm()
 }
 
 /// Runs the protocol on `shapes` (ibug68, mm) for each condition.
@@ -82,16 +97,36 @@ pub fn sfm_check(
     seed: u64,
 ) -> Result<Vec<SfmResult>> {
     let nose = scheme.anchors.nose_tip[0];
-    let (l, r) = (
-        scheme.anchors.eye_left[0],
-        *scheme.anchors.eye_right.last().unwrap_or(&0),
-    );
+    if let Some(short) = shapes.iter().position(|s| s.len() != scheme.len()) {
+        return Err(crate::Error::param(
+            "shapes",
+            format!(
+                "shape {short} has {} points, the scheme {} has {}",
+                shapes[short].len(),
+                scheme.name,
+                scheme.len()
+            ),
+        ));
+    }
+    if conditions
+        .iter()
+        .any(|c| 5 * c.missing_per_view > scheme.len())
+    {
+        return Err(crate::Error::param(
+            "missing_per_view",
+            format!(
+                "at most {} points per view, so that every point stays in four of the five views",
+                scheme.len() / 5
+            ),
+        ));
+    }
     let mut out = Vec::new();
     for &condition in conditions {
         let mut rng = StdRng::seed_from_u64(seed);
         let (mut sum, mut worst) = (0.0, 0.0f64);
         for shape in shapes {
-            let iod = (shape[l] - shape[r]).norm();
+            let iod =
+                outer_eye_distance(shape, &scheme.anchors.eye_left, &scheme.anchors.eye_right);
             let views = synthetic_views(
                 shape,
                 &mut rng,
@@ -139,5 +174,32 @@ fn percent(v: f64) -> String {
         format!("{p:.1e}")
     } else {
         format!("{p:.3}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outer_eye_corners_of_ibug68_are_36_and_45() {
+        let mean = &crate::model::default_model().unwrap().1.mean;
+        let a = &crate::shape::ibug68().anchors;
+        let want = (mean[36] - mean[45]).norm();
+        let got = outer_eye_distance(mean, &a.eye_left, &a.eye_right);
+        assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    }
+
+    #[test]
+    fn missing_sets_leave_every_point_in_four_views() {
+        let mean = crate::model::default_model().unwrap().1.mean;
+        let mut rng = StdRng::seed_from_u64(1);
+        for m in [1, 5, 10, 13] {
+            let views = synthetic_views(&mean, &mut rng, 0.0, m).unwrap();
+            for i in 0..mean.len() {
+                let seen = views.iter().filter(|v| v.present()[i]).count();
+                assert!(seen >= 4, "{m} missing per view: point {i} in {seen} views");
+            }
+        }
     }
 }

@@ -13,6 +13,7 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Extension, Json, Router};
+use http_body_util::BodyExt;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use tracing::Instrument;
@@ -366,7 +367,15 @@ pub(super) fn require_json(headers: &HeaderMap) -> Result<(), ApiError> {
     }
 }
 
-/// The body, up to `limit` bytes (413 above).
+/// How much of an over-limit body is read and thrown away before the 413 goes out. Most
+/// clients send the whole body before reading the answer (few use `Expect: 100-continue`); a
+/// server that answers and closes early makes them see a reset connection instead of the 413.
+const DRAIN_LIMIT: u64 = 4 << 20;
+/// How long draining an over-limit body may take before the connection is dropped.
+const DRAIN_TIME: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// The body, up to `limit` bytes (413 above; an over-limit body of up to [`DRAIN_LIMIT`] is
+/// drained first so the client reads the answer).
 async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Bytes, ApiError> {
     read_body_limited(headers, body, limit, "--max-body", "split the batch").await
 }
@@ -390,27 +399,70 @@ pub(super) async fn read_body_limited(
             },
         )
     };
+    let unreadable = |e: axum::Error| {
+        ApiError::new(
+            ErrorKind::MalformedJson,
+            format!("could not read the request body: {e}"),
+        )
+    };
     let declared = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
     if let Some(n) = declared.filter(|&n| n > limit as u64) {
+        // A client waiting for `100 Continue` reads the answer without sending the body.
+        let waits = headers
+            .get(header::EXPECT)
+            .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"100-continue"));
+        if !waits && n <= DRAIN_LIMIT {
+            drain(body, 0).await;
+        }
         return Err(too_large(Some(n)));
     }
-    axum::body::to_bytes(body, limit).await.map_err(|e| {
-        let inner = e.into_inner();
-        if inner
-            .downcast_ref::<http_body_util::LengthLimitError>()
-            .is_some()
-        {
-            too_large(None)
-        } else {
-            ApiError::new(
-                ErrorKind::MalformedJson,
-                format!("could not read the request body: {inner}"),
-            )
+    let mut first: Option<Bytes> = None;
+    let mut rest: Vec<u8> = Vec::new();
+    let mut body = body;
+    while let Some(frame) = body.frame().await {
+        let Ok(data) = frame.map_err(unreadable)?.into_data() else {
+            continue; // trailers
+        };
+        let seen = first.as_ref().map_or(0, Bytes::len) + rest.len() + data.len();
+        if seen > limit {
+            drain(body, seen as u64).await;
+            return Err(too_large(None));
+        }
+        match &first {
+            None => first = Some(data),
+            Some(f) => {
+                if rest.is_empty() {
+                    rest.reserve(declared.map_or(2 * f.len(), |n| n as usize));
+                    rest.extend_from_slice(f);
+                }
+                rest.extend_from_slice(&data);
+            }
+        }
+    }
+    Ok(if rest.is_empty() {
+        first.unwrap_or_default()
+    } else {
+        Bytes::from(rest)
+    })
+}
+
+/// Reads and discards the rest of a body, up to [`DRAIN_LIMIT`] bytes in all (counting `seen`)
+/// and [`DRAIN_TIME`].
+async fn drain(mut body: Body, mut seen: u64) {
+    let _ = tokio::time::timeout(DRAIN_TIME, async {
+        while seen <= DRAIN_LIMIT {
+            match body.frame().await {
+                Some(Ok(frame)) => {
+                    seen += frame.data_ref().map_or(0, |d| d.len() as u64);
+                }
+                _ => break,
+            }
         }
     })
+    .await;
 }
 
 /// Parses a JSON body. Syntax errors are 400; well-formed JSON with unusable values (wrong

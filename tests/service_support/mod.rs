@@ -201,6 +201,28 @@ pub fn raw_post(addr: SocketAddr, path: &str, content_type: &str, body: &[u8]) -
     (status, body)
 }
 
+/// The head of an HTTP/1.1 JSON POST declaring `length` body bytes (plus `extra` header lines),
+/// without the body: (status, body) of the answer.
+pub fn raw_head_only_post(addr: SocketAddr, path: &str, length: u64, extra: &str) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        s,
+        "POST {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\nContent-Type: application/json\r\nContent-Length: {length}\r\n{extra}\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    let _ = s.read_to_string(&mut text);
+    let status = text
+        .split_whitespace()
+        .nth(1)
+        .unwrap_or("0")
+        .parse()
+        .unwrap_or(0);
+    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
+    (status, body)
+}
+
 /// A chunked HTTP/1.1 POST of JSON whose length is not declared: (status, body).
 pub fn raw_chunked_post(addr: SocketAddr, path: &str, chunks: &[&[u8]]) -> (u16, String) {
     let mut s = TcpStream::connect(addr).unwrap();

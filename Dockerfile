@@ -1,0 +1,44 @@
+# facepose: head pose from 2D facial landmarks, HTTP JSON and gRPC on one port (8080).
+#
+#   docker build -t facepose .
+#   docker run --rm -p 8080:8080 facepose
+#
+# The binary embeds the default model; models/ is copied as the image's model folder so that
+# more bundles can ship with it. Mount a volume at /var/lib/facepose/models (and point
+# FACEPOSE_MODELS at it) to keep retrained versions across restarts and share them between
+# replicas (deploy/kubernetes/).
+
+FROM rust:1.95-slim-bookworm AS build
+WORKDIR /src
+# Dependencies first, so that source edits do not rebuild them.
+COPY Cargo.toml Cargo.lock build.rs ./
+COPY proto ./proto
+RUN mkdir -p src benches examples \
+ && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
+ && for b in hpr estimate service; do echo 'fn main() {}' > benches/$b.rs; done \
+ && echo 'fn main() {}' > examples/loadgen.rs \
+ && cargo build --release --locked --bin facepose || true
+COPY src ./src
+COPY models ./models
+COPY assets ./assets
+RUN touch src/main.rs src/lib.rs && cargo build --release --locked --bin facepose
+
+FROM debian:bookworm-slim
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends ca-certificates=20230311+deb12u1 \
+ && rm -rf /var/lib/apt/lists/* \
+ && useradd --system --uid 10001 --home-dir /nonexistent --shell /usr/sbin/nologin facepose \
+ && mkdir -p /var/lib/facepose/models \
+ && chown facepose /var/lib/facepose/models
+COPY --from=build /src/target/release/facepose /usr/local/bin/facepose
+COPY --from=build /src/models /usr/share/facepose/models
+USER 10001
+ENV FACEPOSE_ADDR=0.0.0.0:8080 \
+    FACEPOSE_MODELS=/usr/share/facepose/models \
+    FACEPOSE_LOG_FORMAT=json
+EXPOSE 8080
+# Readiness and liveness belong to the orchestrator (GET /readyz, GET /healthz); the image has
+# no curl, so no HEALTHCHECK here.
+STOPSIGNAL SIGTERM
+ENTRYPOINT ["/usr/local/bin/facepose"]
+CMD ["serve"]
