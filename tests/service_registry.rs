@@ -1016,6 +1016,17 @@ async fn the_auth_matrix() {
             );
         }
     }
+    // A large upload without the token gets its 401 too (the server drains the body before
+    // answering, as for an over-limit body, so a client that writes it all reads the answer).
+    let big = format!("{{\"shapes\": []}}{}", " ".repeat(3 << 20));
+    let r = c
+        .post(on.url("/v1/models"))
+        .header("content-type", "application/json")
+        .body(big)
+        .send()
+        .await
+        .expect("an answer, not a broken pipe");
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
     // The right token: the route's own answer.
     let r = send(&on, "POST", &admin[0].1, Some(format!("Bearer {TOKEN}")))
         .await

@@ -374,13 +374,14 @@ const DRAIN_LIMIT: u64 = 4 << 20;
 /// How long draining an over-limit body may take before the connection is dropped.
 const DRAIN_TIME: std::time::Duration = std::time::Duration::from_secs(2);
 
-/// The body, up to `limit` bytes (413 above; an over-limit body of up to [`DRAIN_LIMIT`] is
-/// drained first so the client reads the answer).
+/// The body, up to `--max-body` bytes (see [`read_body_limited`]).
 async fn read_body(headers: &HeaderMap, body: Body, limit: usize) -> Result<Bytes, ApiError> {
     read_body_limited(headers, body, limit, "--max-body", "split the batch").await
 }
 
-/// The body, up to `limit` bytes; the 413 message names the flag and what to do.
+/// The body, up to `limit` bytes: 413 above, its message naming `flag` and saying what to do
+/// (`hint`); an over-limit body of up to [`DRAIN_LIMIT`] is drained first so the client reads
+/// the answer.
 pub(super) async fn read_body_limited(
     headers: &HeaderMap,
     body: Body,
@@ -447,6 +448,22 @@ pub(super) async fn read_body_limited(
     } else {
         Bytes::from(rest)
     })
+}
+
+/// Throws away the body of a request refused before reading it (an admin route without the
+/// token, say), within the same bounds as an over-limit body, so that the client reads the
+/// answer rather than a reset connection.
+pub(super) async fn discard_body(headers: &HeaderMap, body: Body) {
+    let waits = headers
+        .get(header::EXPECT)
+        .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"100-continue"));
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if !waits && declared.is_none_or(|n| n <= DRAIN_LIMIT) {
+        drain(body, 0).await;
+    }
 }
 
 /// Reads and discards the rest of a body, up to [`DRAIN_LIMIT`] bytes in all (counting `seen`)

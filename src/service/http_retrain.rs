@@ -13,7 +13,7 @@ use utoipa::ToSchema;
 
 use super::AppState;
 use super::errors::{ApiError, ErrorBody};
-use super::http::{parse_json, read_body_limited, require_json};
+use super::http::{discard_body, parse_json, read_body_limited, require_json};
 use super::http_registry::authorize;
 use super::jobs::Job;
 use super::retrain::{self, RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
@@ -216,9 +216,13 @@ pub async fn retrain(
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
-    authorize(&st, &headers)?;
-    st.registry.require_dir()?;
-    require_json(&headers)?;
+    let refused = authorize(&st, &headers)
+        .and_then(|()| st.registry.require_dir().map(drop))
+        .and_then(|()| require_json(&headers));
+    if let Err(e) = refused {
+        discard_body(&headers, body).await;
+        return Err(e);
+    }
     let bytes = read_body_limited(
         &headers,
         body,
