@@ -93,6 +93,7 @@ pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str
 /// Evaluates `method` on `source` over the `within_99` faces. A face the method cannot answer
 /// counts as a failure (and is left out of the means).
 pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: Source) -> AflwRow {
+    let mut geodesic_faces = 0usize;
     let mut row = AflwRow {
         method,
         source,
@@ -127,6 +128,7 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         row.mae_roll += e[2];
         if let Ok(truth) = rotation_from_rows(face.rotation, 1e-4) {
             row.geodesic += geodesic_deg(&est.rotation, &truth);
+            geodesic_faces += 1;
         }
         let b = YAW_BINS
             .iter()
@@ -141,7 +143,7 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
     row.mae_yaw /= n;
     row.mae_roll /= n;
     row.mae_mean = (row.mae_pitch + row.mae_yaw + row.mae_roll) / 3.0;
-    row.geodesic /= n;
+    row.geodesic /= geodesic_faces.max(1) as f64;
     for b in 0..3 {
         row.mae_by_yaw[b] /= row.faces_by_yaw[b].max(1) as f64;
     }
