@@ -28,6 +28,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
+use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
 /// The ratios of the method.
@@ -96,11 +97,8 @@ pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerA
         ));
     }
     // The y-up plane: (u, -v).
-    let p: Vec<Vector2<f64>> = five
-        .points()
-        .iter()
-        .map(|v| Vector2::new(v.x, -v.y))
-        .collect();
+    let pts = five.points();
+    let p: [Vector2<f64>; 5] = std::array::from_fn(|i| image_to_plane(&pts[i]));
     let eye = p[1] - p[0];
     if eye.norm() < 1e-9 {
         return Err(Error::Degenerate("the two eye centres coincide".into()));
@@ -119,10 +117,7 @@ pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerA
         let (yaw, pitch, turn) = (x[0], x[1], x[2]);
         // Undo the in-plane turn (clockwise by `turn`): rotate counter-clockwise by it.
         let (s, co) = turn.sin_cos();
-        let q: Vec<Vector2<f64>> = p
-            .iter()
-            .map(|v| Vector2::new(co * v.x - s * v.y, s * v.x + co * v.y))
-            .collect();
+        let q = p.map(|v| Vector2::new(co * v.x - s * v.y, s * v.x + co * v.y));
         let fa = 0.5 * (q[0] + q[1]);
         let fd = 0.5 * (q[3] + q[4]);
         let axis = fa - fd;

@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use crate::data::AflwFace;
 use crate::estimate::{Method, estimate};
+use crate::geometry::convention::wrap_deg;
 use crate::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
 use crate::model::PoseModel;
 use crate::shape::{Shape2, ibug68};
@@ -65,10 +66,6 @@ pub struct AflwRow {
     pub per_face: Vec<(f64, f64)>,
 }
 
-fn wrap(d: f64) -> f64 {
-    (d + 180.0).rem_euclid(360.0) - 180.0
-}
-
 /// The landmarks of a face from a source, in the scheme the source is given in.
 pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str, Shape2)> {
     let to_shape =
@@ -117,9 +114,9 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         };
         let a: EulerAngles = est.angles;
         let e = [
-            wrap(a.pitch - face.pitch).abs(),
-            wrap(a.yaw - face.yaw).abs(),
-            wrap(a.roll - face.roll).abs(),
+            wrap_deg(a.pitch - face.pitch).abs(),
+            wrap_deg(a.yaw - face.yaw).abs(),
+            wrap_deg(a.roll - face.roll).abs(),
         ];
         let mean = (e[0] + e[1] + e[2]) / 3.0;
         row.faces += 1;

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 use self::cache::{BoundedCache, Key, Pattern};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
+use crate::geometry::convention::{rx, ry, rz, wrap_deg};
 use crate::shape::Shape2;
 use crate::synth::PoseGrid;
 
@@ -297,7 +298,7 @@ impl RegressionModel {
             f_all.column_mut(used).copy_from(&f);
             t_all[(0, used)] = v.angles.yaw;
             t_all[(1, used)] = v.angles.pitch;
-            t_all[(2, used)] = wrap180(v.angles.roll - phi);
+            t_all[(2, used)] = wrap_deg(v.angles.roll - phi);
             used += 1;
         }
         if used < 3 {
@@ -593,14 +594,7 @@ thread_local! {
 /// turned in the image plane by the regression's residual; undoing the de-roll turns it by the
 /// eye-line angle more (angles in degrees, the convention's matrices).
 fn compose(in_plane: f64, pitch: f64, yaw: f64) -> Rotation3<f64> {
-    let (sz, cz) = in_plane.to_radians().sin_cos();
-    let (sx, cx) = pitch.to_radians().sin_cos();
-    let (sy, cy) = yaw.to_radians().sin_cos();
-    // Rx(pitch) Ry(yaw) = [[cy, 0, -sy], [sx sy, cx, sx cy], [cx sy, -sx, cx cy]], then
-    // Rz(in_plane) = [[cz, sz, 0], [-sz, cz, 0], [0, 0, 1]] on the left.
-    let m = nalgebra::Matrix3::new(cy, 0.0, -sy, sx * sy, cx, sx * cy, cx * sy, -sx, cx * cy);
-    let rz = nalgebra::Matrix3::new(cz, sz, 0.0, -sz, cz, 0.0, 0.0, 0.0, 1.0);
-    Rotation3::from_matrix_unchecked(rz * m)
+    Rotation3::from_matrix_unchecked(rz(in_plane) * rx(pitch) * ry(yaw))
 }
 
 fn check_epsilon(epsilon: f64) -> Result<()> {
@@ -612,11 +606,6 @@ fn check_epsilon(epsilon: f64) -> Result<()> {
             format!("must be positive, got {epsilon}"),
         ))
     }
-}
-
-fn wrap180(d: f64) -> f64 {
-    let r = (d + 180.0).rem_euclid(360.0) - 180.0;
-    if r == -180.0 { 180.0 } else { r }
 }
 
 #[cfg(test)]
