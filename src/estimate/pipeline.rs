@@ -275,7 +275,7 @@ pub fn estimate_with(
                 SubsetMap::Anchors => landmarks.clone(),
                 SubsetMap::Own | SubsetMap::Indices(_) => landmarks.to_five(&subset.scheme)?,
             };
-            estimate_geometric(&five, &model.geometry)?.to_rotation()
+            estimate_geometric(&five, &model.geometry)?
         }
         Method::Auto => unreachable!("resolved above"),
     };
