@@ -29,6 +29,7 @@ use nalgebra::{DMatrix, Matrix2x3, Matrix3, Rotation3, SymmetricEigen, Vector2, 
 
 use crate::error::{Error, Result};
 use crate::geometry::WeakPerspective;
+use crate::geometry::{image_to_plane, rotation_from_two_rows};
 use crate::shape::Shape2;
 
 /// Options of [`reconstruct`].
@@ -187,11 +188,7 @@ pub fn reconstruct(views: &[Shape2], opts: SfmOptions) -> Result<Reconstruction>
     // Alternation on the observed entries only.
     let obs: Vec<Vec<Option<Vector2<f64>>>> = views
         .iter()
-        .map(|v| {
-            (0..n)
-                .map(|j| v.get(j).map(|p| Vector2::new(p.x, -p.y)))
-                .collect()
-        })
+        .map(|v| (0..n).map(|j| v.get(j).map(image_to_plane)).collect())
         .collect();
     let mut rms = residual(&obs, &cameras, &shape);
     for _ in 0..opts.max_iterations {
@@ -363,14 +360,7 @@ fn nearest_scaled_orthographic(p: &Matrix2x3<f64>) -> Matrix2x3<f64> {
 
 /// The rotation whose first two rows are the (normalized) rows of a scaled orthographic camera.
 fn camera_rotation(p: &Matrix2x3<f64>) -> Rotation3<f64> {
-    let r1: Vector3<f64> = p.row(0).transpose().normalize();
-    let r2: Vector3<f64> = (p.row(1).transpose() - r1 * r1.dot(&p.row(1).transpose())).normalize();
-    let r3 = r1.cross(&r2);
-    Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
-        r1.transpose(),
-        r2.transpose(),
-        r3.transpose(),
-    ]))
+    rotation_from_two_rows(&p.row(0).transpose(), &p.row(1).transpose())
 }
 
 /// Least-squares scaled orthographic camera and translation for one view, observed points only.

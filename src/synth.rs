@@ -10,15 +10,34 @@ use crate::hpr::{HprScratch, PaperHpr};
 use crate::shape::Shape2;
 
 /// Angles `min, min + step, ..., max` in degrees (max included when it falls on the grid).
+/// Read from JSON through [`AngleRange::new`]'s checks.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "AngleRangeFields")]
 pub struct AngleRange {
     pub min: f64,
     pub max: f64,
     pub step: f64,
 }
 
+#[derive(Deserialize)]
+struct AngleRangeFields {
+    min: f64,
+    max: f64,
+    step: f64,
+}
+
+impl TryFrom<AngleRangeFields> for AngleRange {
+    type Error = Error;
+    fn try_from(f: AngleRangeFields) -> Result<Self> {
+        AngleRange::new(f.min, f.max, f.step)
+    }
+}
+
 impl AngleRange {
-    /// A validated range: finite, `min <= max`, `step > 0`.
+    /// The most values a range may hold.
+    pub const MAX_VALUES: usize = 10_000;
+
+    /// A validated range: finite, `min <= max`, `step > 0`, at most [`Self::MAX_VALUES`] values.
     pub fn new(min: f64, max: f64, step: f64) -> Result<Self> {
         if !(min.is_finite() && max.is_finite() && step.is_finite()) {
             return Err(Error::non_finite("angle range"));
@@ -27,6 +46,15 @@ impl AngleRange {
             return Err(Error::param(
                 "angle range",
                 format!("needs min <= max and step > 0, got {min}..{max} step {step}"),
+            ));
+        }
+        if (max - min) / step >= Self::MAX_VALUES as f64 {
+            return Err(Error::param(
+                "angle range",
+                format!(
+                    "{min}..{max} at step {step} is over {} angles: use a larger step",
+                    Self::MAX_VALUES
+                ),
             ));
         }
         Ok(AngleRange { min, max, step })
@@ -184,6 +212,23 @@ impl<'a> ViewSynthesizer<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn json_ranges_go_through_the_checks() {
+        let ok: AngleRange = serde_json::from_str(r#"{"min": -4, "max": 4, "step": 2}"#).unwrap();
+        assert_eq!(ok.values().collect::<Vec<_>>(), [-4.0, -2.0, 0.0, 2.0, 4.0]);
+        for bad in [
+            r#"{"min": 0, "max": 10, "step": 0}"#,
+            r#"{"min": 0, "max": 10, "step": -1}"#,
+            r#"{"min": 10, "max": 0, "step": 1}"#,
+            r#"{"min": -90, "max": 90, "step": 1e-6}"#,
+        ] {
+            let e = serde_json::from_str::<AngleRange>(bad)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("angle range"), "{bad}: {e}");
+        }
+    }
     use approx::assert_relative_eq;
 
     #[test]

@@ -137,6 +137,12 @@ fn damaged_bundles_say_what_is_wrong() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("shape_basis"), "{e}");
+    let e = edited(|b| b.geometry.lf *= 1.01, true).unwrap_err();
+    assert!(e.to_string().contains("geometry.lf"), "{e}");
+    let e = edited(|b| b.geometry.axis_tilt = f64::NAN, true).unwrap_err();
+    assert!(e.to_string().contains("geometry.axis_tilt"), "{e}");
+    let e = edited(|b| b.training.regression.coarse.roll.max = 10.0, true).unwrap_err();
+    assert!(e.to_string().contains("roll"), "{e}");
     // Truncated text and a wrong type name the place.
     let e = Bundle::parse(&DEFAULT_BUNDLE[..DEFAULT_BUNDLE.len() / 2]).unwrap_err();
     assert!(matches!(e, BundleError::Parse { .. }), "{e}");

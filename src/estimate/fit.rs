@@ -17,6 +17,7 @@ use nalgebra::{Matrix2x3, Matrix3, Matrix6, Rotation3, Vector2, Vector3, Vector6
 
 use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
+use crate::geometry::{image_to_plane, rotation_from_two_rows};
 use crate::shape::Shape2;
 
 /// What the fit does with points hidden at its estimate (HPR on the shape, through a
@@ -92,11 +93,7 @@ pub fn fit_rigid(
     if present < 4 {
         return Err(Error::too_few("rigid fit", 4, present));
     }
-    let y: Vec<Vector2<f64>> = landmarks
-        .points()
-        .iter()
-        .map(|p| Vector2::new(p.x, -p.y))
-        .collect();
+    let y: Vec<Vector2<f64>> = landmarks.points().iter().map(image_to_plane).collect();
     let mut base = vec![0.0; n];
     for (i, w) in base.iter_mut().enumerate() {
         if landmarks.present()[i] {
@@ -226,14 +223,7 @@ fn affine_start(
         .ok_or_else(|| Error::Numerical("polar decomposition failed".into()))?
         * root_sum;
     let rows = inv_sqrt * a;
-    let r1: Vector3<f64> = rows.row(0).transpose().normalize();
-    let r2: Vector3<f64> =
-        (rows.row(1).transpose() - r1 * r1.dot(&rows.row(1).transpose())).normalize();
-    let rot = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
-        r1.transpose(),
-        r2.transpose(),
-        r1.cross(&r2).transpose(),
-    ]));
+    let rot = rotation_from_two_rows(&rows.row(0).transpose(), &rows.row(1).transpose());
     let s = 0.5 * root_sum;
     let t = cy - s * (rot * cx).xy();
     Ok((rot, s, t))

@@ -23,11 +23,12 @@
 //! `L_f`, `l_n` and the tilt come from a mean 3D shape ([`GeometryConstants::from_mean`]); the
 //! paper reports 0.45 and 0.50 for its database.
 
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Rotation3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
-use crate::geometry::EulerAngles;
+use crate::geometry::convention::{rx, ry, rz};
+use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
 /// The ratios of the method.
@@ -80,7 +81,7 @@ impl GeometryConstants {
 const MAX_ITERATIONS: usize = 50;
 
 /// The pose from five points (image pixels, all present) with the given constants.
-pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerAngles> {
+pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<Rotation3<f64>> {
     if five.len() != 5 {
         return Err(Error::PointCount {
             what: "five-point landmarks".into(),
@@ -96,11 +97,8 @@ pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerA
         ));
     }
     // The y-up plane: (u, -v).
-    let p: Vec<Vector2<f64>> = five
-        .points()
-        .iter()
-        .map(|v| Vector2::new(v.x, -v.y))
-        .collect();
+    let pts = five.points();
+    let p: [Vector2<f64>; 5] = std::array::from_fn(|i| image_to_plane(&pts[i]));
     let eye = p[1] - p[0];
     if eye.norm() < 1e-9 {
         return Err(Error::Degenerate("the two eye centres coincide".into()));
@@ -119,10 +117,7 @@ pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerA
         let (yaw, pitch, turn) = (x[0], x[1], x[2]);
         // Undo the in-plane turn (clockwise by `turn`): rotate counter-clockwise by it.
         let (s, co) = turn.sin_cos();
-        let q: Vec<Vector2<f64>> = p
-            .iter()
-            .map(|v| Vector2::new(co * v.x - s * v.y, s * v.x + co * v.y))
-            .collect();
+        let q = p.map(|v| Vector2::new(co * v.x - s * v.y, s * v.x + co * v.y));
         let fa = 0.5 * (q[0] + q[1]);
         let fd = 0.5 * (q[3] + q[4]);
         let axis = fa - fd;
@@ -169,25 +164,16 @@ pub fn estimate_geometric(five: &Shape2, c: &GeometryConstants) -> Result<EulerA
         };
     }
     let (yaw, pitch, turn) = (x[0], x[1], x[2]);
-    let roll_free = EulerAngles {
-        yaw: yaw.to_degrees(),
-        pitch: pitch.to_degrees(),
-        roll: 0.0,
-    }
-    .to_rotation();
-    let in_plane = EulerAngles {
-        yaw: 0.0,
-        pitch: 0.0,
-        roll: turn.to_degrees(),
-    }
-    .to_rotation();
-    Ok(EulerAngles::from_rotation(&(in_plane * roll_free)))
+    // The roll-free pose turned in the image plane.
+    Ok(Rotation3::from_matrix_unchecked(
+        rz(turn.to_degrees()) * rx(pitch.to_degrees()) * ry(yaw.to_degrees()),
+    ))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::WeakPerspective;
+    use crate::geometry::{EulerAngles, WeakPerspective};
 
     fn five3() -> [Vector3<f64>; 5] {
         [
@@ -218,14 +204,16 @@ mod tests {
     #[test]
     fn frontal_is_zero_and_signs_follow_the_convention() {
         let c = GeometryConstants::from_mean(&five3()).unwrap();
-        let a = estimate_geometric(&view(EulerAngles::new(0.0, 0.0, 0.0).unwrap()), &c).unwrap();
+        let r = estimate_geometric(&view(EulerAngles::new(0.0, 0.0, 0.0).unwrap()), &c).unwrap();
+        let a = EulerAngles::from_rotation(&r);
         assert!(
-            a.yaw.abs() < 1.5 && a.pitch.abs() < 1.5 && a.roll.abs() < 1e-9,
+            a.yaw.abs() < 1e-6 && a.pitch.abs() < 1e-6 && a.roll.abs() < 1e-9,
             "{a:?}"
         );
         for (yaw, pitch, roll) in [(20.0, 0.0, 0.0), (0.0, 15.0, 0.0), (-25.0, -10.0, 12.0)] {
-            let e =
+            let r =
                 estimate_geometric(&view(EulerAngles::new(yaw, pitch, roll).unwrap()), &c).unwrap();
+            let e = EulerAngles::from_rotation(&r);
             assert!((e.yaw - yaw).abs() < 1e-6, "{yaw} {pitch} {roll} -> {e:?}");
             assert!(
                 (e.pitch - pitch).abs() < 1e-6,
@@ -247,7 +235,7 @@ mod tests {
             let c = GeometryConstants::from_mean(&five3()).unwrap();
             let truth = EulerAngles::new(yaw, pitch, roll).unwrap();
             let e = estimate_geometric(&view(truth), &c).unwrap();
-            let err = crate::geometry::geodesic_deg(&e.to_rotation(), &truth.to_rotation());
+            let err = crate::geometry::geodesic_deg(&e, &truth.to_rotation());
             proptest::prop_assert!(err < 1e-6, "{truth:?} -> {e:?}");
         }
     }

@@ -14,11 +14,12 @@
 //! precomputed second-moment matrices of the basis, so a step costs `O(K²)` for it instead of
 //! `O(n K²)`; points with weights other than one are corrected for one by one.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Rotation3, Vector2, Vector3};
 
 use super::fit::{FitOptions, Hidden, RigidFit, fit_rigid, model_size, tukey_reweight};
 use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
+use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.
@@ -141,8 +142,9 @@ impl MorphableBasis {
             add_scaled(&mut out, -r3[a] * r3[b], m);
         }
         // Bᵢᵀ (I - r₃r₃ᵀ) Bᵢ = Σ_a Bᵢ[a]ᵀ Bᵢ[a] - uᵢ uᵢᵀ with uᵢ = Bᵢᵀ r₃.
-        let proj = Matrix3::identity() - r3 * r3.transpose();
+        let proj = DMatrix::from_fn(3, 3, |a, b| f64::from(u8::from(a == b)) - r3[a] * r3[b]);
         let mut rows = DMatrix::<f64>::zeros(3, k);
+        let mut projected = DMatrix::<f64>::zeros(3, k);
         for (i, &wi) in w.iter().enumerate() {
             if wi == 1.0 {
                 continue;
@@ -150,7 +152,7 @@ impl MorphableBasis {
             for a in 0..3 {
                 rows.row_mut(a).copy_from(&self.axes[a].row(i));
             }
-            let projected = proj * &rows;
+            projected.gemm(1.0, &proj, &rows, 0.0);
             // out -= (1 - wᵢ) rowsᵀ (I - r₃r₃ᵀ) rows
             out.gemm_tr(-(1.0 - wi), &rows, &projected, 1.0);
         }
@@ -226,11 +228,7 @@ pub fn fit_morphable(
             shape: model.prior_shape.clone(),
         });
     }
-    let y: Vec<Vector2<f64>> = landmarks
-        .points()
-        .iter()
-        .map(|p| Vector2::new(p.x, -p.y))
-        .collect();
+    let y: Vec<Vector2<f64>> = landmarks.points().iter().map(image_to_plane).collect();
     // The joint fit weighs points by presence (and visibility at the rigid pose when asked),
     // not by the rigid fit's robust weights: a shape the prior shape does not match looks like
     // outliers to a rigid model. Robustness comes after, on the joint residuals.
@@ -450,10 +448,16 @@ fn normal_equations(
     let cross = u.tr_mul(&jx) + v.tr_mul(&jy);
     jtj.view_mut((6, 0), (k, 6)).copy_from(&cross);
     jtj.view_mut((0, 6), (6, k)).copy_from(&cross.transpose());
-    // Coefficient block from the moments, plus the prior.
-    let r3 = Vector3::new(m[(2, 0)], m[(2, 1)], m[(2, 2)]);
-    let mut cc = model.coefficient_block(&r3, w);
-    cc *= st.s * st.s;
+    // Coefficient block `s² Σ wᵢ Bᵢᵀ (I - r₃r₃ᵀ) Bᵢ = uᵀWu + vᵀWv`: from the moments when most
+    // weights are one (a correction per other point costs about a third of a direct row), else
+    // directly (after robust reweighting no weight is one); then the prior.
+    let reweighted = w.iter().filter(|&&wi| wi != 1.0).count();
+    let mut cc = if 3 * reweighted > 2 * n {
+        u.tr_mul(&weigh(&u)) + v.tr_mul(&weigh(&v))
+    } else {
+        let r3 = Vector3::new(m[(2, 0)], m[(2, 1)], m[(2, 2)]);
+        model.coefficient_block(&r3, w) * (st.s * st.s)
+    };
     for kk in 0..k {
         cc[(kk, kk)] += prior_w;
     }
@@ -469,6 +473,7 @@ fn normal_equations(
 mod tests {
     use super::*;
     use crate::geometry::{EulerAngles, WeakPerspective};
+    use nalgebra::Matrix3;
 
     /// A small face and two deformations: a deeper nose and a wider mouth.
     fn basis() -> MorphableBasis {
@@ -518,6 +523,28 @@ mod tests {
                 assert!((fast[(p, q)] - direct).abs() < 1e-9, "{p} {q}");
             }
         }
+    }
+
+    #[test]
+    fn both_ways_to_the_coefficient_block_agree() {
+        let b = basis();
+        let r = EulerAngles::new(25.0, -10.0, 5.0).unwrap().to_rotation();
+        let st = Joint {
+            r,
+            s: 1.7,
+            t: Vector2::new(3.0, -2.0),
+            c: DVector::from_column_slice(&[0.3, -0.2]),
+            shape: b.shape(&[0.3, -0.2]),
+        };
+        let y = vec![Vector2::new(1.0, 2.0); 10];
+        let k = 2;
+        // Every weight other than one: the direct sum; the same weights through the moments.
+        let w = [0.9, 0.5, 0.0, 0.7, 0.8, 0.25, 0.6, 0.95, 0.3, 0.0];
+        let (jtj, _) = normal_equations(&b, &y, &w, &st, 0.0);
+        let r3 = r.matrix().row(2).transpose();
+        let moments = b.coefficient_block(&r3, &w) * (st.s * st.s);
+        let direct = jtj.view((6, 6), (k, k));
+        assert!((direct - &moments).norm() < 1e-9, "{direct} vs {moments}");
     }
 
     #[test]

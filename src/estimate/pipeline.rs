@@ -14,6 +14,7 @@ use super::morph_fit::{MorphOptions, fit_morphable};
 use super::perspective::{Intrinsics, refine_perspective};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
+use crate::geometry::image_to_plane;
 use crate::model::{PoseModel, Subset, SubsetMap};
 use crate::shape::Shape2;
 
@@ -274,7 +275,7 @@ pub fn estimate_with(
                 SubsetMap::Anchors => landmarks.clone(),
                 SubsetMap::Own | SubsetMap::Indices(_) => landmarks.to_five(&subset.scheme)?,
             };
-            estimate_geometric(&five, &model.geometry)?.to_rotation()
+            estimate_geometric(&five, &model.geometry)?
         }
         Method::Auto => unreachable!("resolved above"),
     };
@@ -330,7 +331,7 @@ fn residual(
     let (mut qq, mut yy, mut qy) = (0.0, 0.0, 0.0);
     for (i, p) in lm.iter_present() {
         let q = (r * mean[i]).xy() - q0;
-        let y = Vector2::new(p.x, -p.y) - y0;
+        let y = image_to_plane(p) - y0;
         n += 1.0;
         sq += q;
         sy += y;
@@ -382,7 +383,7 @@ mod tests {
         pts[5].y += 3.0;
         let moved = Shape2::full(pts.clone()).unwrap();
         let q: Vec<Vector2<f64>> = face().iter().map(|x| (r * x).xy()).collect();
-        let y: Vec<Vector2<f64>> = pts.iter().map(|p| Vector2::new(p.x, -p.y)).collect();
+        let y: Vec<Vector2<f64>> = pts.iter().map(image_to_plane).collect();
         let (qm, ym) = (
             q.iter().sum::<Vector2<f64>>() / 6.0,
             y.iter().sum::<Vector2<f64>>() / 6.0,

@@ -7,6 +7,7 @@ use serde::Serialize;
 
 use crate::data::AflwFace;
 use crate::estimate::{Method, estimate};
+use crate::geometry::convention::wrap_deg;
 use crate::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
 use crate::model::PoseModel;
 use crate::shape::{Shape2, ibug68};
@@ -65,10 +66,6 @@ pub struct AflwRow {
     pub per_face: Vec<(f64, f64)>,
 }
 
-fn wrap(d: f64) -> f64 {
-    (d + 180.0).rem_euclid(360.0) - 180.0
-}
-
 /// The landmarks of a face from a source, in the scheme the source is given in.
 pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str, Shape2)> {
     let to_shape =
@@ -93,6 +90,7 @@ pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str
 /// Evaluates `method` on `source` over the `within_99` faces. A face the method cannot answer
 /// counts as a failure (and is left out of the means).
 pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: Source) -> AflwRow {
+    let mut geodesic_faces = 0usize;
     let mut row = AflwRow {
         method,
         source,
@@ -116,9 +114,9 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         };
         let a: EulerAngles = est.angles;
         let e = [
-            wrap(a.pitch - face.pitch).abs(),
-            wrap(a.yaw - face.yaw).abs(),
-            wrap(a.roll - face.roll).abs(),
+            wrap_deg(a.pitch - face.pitch).abs(),
+            wrap_deg(a.yaw - face.yaw).abs(),
+            wrap_deg(a.roll - face.roll).abs(),
         ];
         let mean = (e[0] + e[1] + e[2]) / 3.0;
         row.faces += 1;
@@ -127,6 +125,7 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         row.mae_roll += e[2];
         if let Ok(truth) = rotation_from_rows(face.rotation, 1e-4) {
             row.geodesic += geodesic_deg(&est.rotation, &truth);
+            geodesic_faces += 1;
         }
         let b = YAW_BINS
             .iter()
@@ -141,7 +140,7 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
     row.mae_yaw /= n;
     row.mae_roll /= n;
     row.mae_mean = (row.mae_pitch + row.mae_yaw + row.mae_roll) / 3.0;
-    row.geodesic /= n;
+    row.geodesic /= geodesic_faces.max(1) as f64;
     for b in 0..3 {
         row.mae_by_yaw[b] /= row.faces_by_yaw[b].max(1) as f64;
     }

@@ -68,6 +68,19 @@ pub fn hpr_table(
     katz: &[KatzHpr],
 ) -> Result<Vec<HprRow>> {
     let truth = MeshVisibility::new(vertices, triangles.to_vec())?.with_back_face_rule(true);
+    if let Some(k) = ibug68
+        .iter()
+        .position(|v| v.is_empty() || v.iter().any(|&i| i >= vertices.len()))
+    {
+        return Err(crate::Error::param(
+            format!("ibug68 mapping[{k}]"),
+            format!(
+                "needs one or more mesh vertex indices below {}, got {:?}",
+                vertices.len(),
+                ibug68[k]
+            ),
+        ));
+    }
     let mapped: Vec<SurfacePoint> = ibug68
         .iter()
         .map(|v| SurfacePoint {

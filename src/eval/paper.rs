@@ -35,6 +35,7 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 use crate::estimate::{Method, estimate};
+use crate::geometry::convention::wrap_deg;
 use crate::geometry::procrustes::centre3;
 use crate::geometry::{EulerAngles, geodesic_deg};
 use crate::hpr::PaperHpr;
@@ -335,10 +336,6 @@ fn subset_landmarks(model: &PoseModel, subset: &Subset, v: &ImageView) -> Result
     Shape2::new(pts.iter().map(|p| p.xy()).collect(), vis)
 }
 
-fn wrap(d: f64) -> f64 {
-    (d + 180.0).rem_euclid(360.0) - 180.0
-}
-
 /// Running sums of one entry.
 #[derive(Default, Clone)]
 struct Acc {
@@ -362,8 +359,8 @@ impl Acc {
             self.failures += 1;
             return None;
         };
-        let dy = wrap(e.angles.yaw - truth.yaw);
-        let dp = wrap(e.angles.pitch - truth.pitch);
+        let dy = wrap_deg(e.angles.yaw - truth.yaw);
+        let dp = wrap_deg(e.angles.pitch - truth.pitch);
         self.n += 1;
         self.se_yaw += dy * dy;
         self.se_pitch += dp * dp;

@@ -64,19 +64,40 @@ impl EulerAngles {
     }
 }
 
-fn rx(deg: f64) -> Matrix3<f64> {
+/// The convention's rotation about x by `deg` degrees (pitch).
+pub fn rx(deg: f64) -> Matrix3<f64> {
     let (s, c) = deg.to_radians().sin_cos();
     Matrix3::new(1.0, 0.0, 0.0, 0.0, c, s, 0.0, -s, c)
 }
 
-fn ry(deg: f64) -> Matrix3<f64> {
+/// The convention's rotation about y by `deg` degrees (yaw).
+pub fn ry(deg: f64) -> Matrix3<f64> {
     let (s, c) = deg.to_radians().sin_cos();
     Matrix3::new(c, 0.0, -s, 0.0, 1.0, 0.0, s, 0.0, c)
 }
 
-fn rz(deg: f64) -> Matrix3<f64> {
+/// The convention's rotation about z by `deg` degrees (roll).
+pub fn rz(deg: f64) -> Matrix3<f64> {
     let (s, c) = deg.to_radians().sin_cos();
     Matrix3::new(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0)
+}
+
+/// An angle difference in degrees brought into (-180, 180].
+pub fn wrap_deg(d: f64) -> f64 {
+    let r = (d + 180.0).rem_euclid(360.0) - 180.0;
+    if r == -180.0 { 180.0 } else { r }
+}
+
+/// The rotation whose first two rows are `r1` and `r2` made orthonormal (Gram-Schmidt, `r1`
+/// kept), the third their cross product: the rotation of a scaled orthographic camera.
+pub fn rotation_from_two_rows(r1: &Vector3<f64>, r2: &Vector3<f64>) -> Rotation3<f64> {
+    let r1 = r1.normalize();
+    let r2 = (r2 - r1 * r1.dot(r2)).normalize();
+    Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+        r1.transpose(),
+        r2.transpose(),
+        r1.cross(&r2).transpose(),
+    ]))
 }
 
 /// A 3x3 matrix given row-major (as in JSON `rotation` fields) as a rotation, after checking that

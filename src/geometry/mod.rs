@@ -6,6 +6,8 @@ pub mod procrustes;
 pub mod projection;
 pub mod smoothing;
 
-pub use convention::{EulerAngles, geodesic_deg, rotation_from_rows, rotation_rows};
+pub use convention::{
+    EulerAngles, geodesic_deg, rotation_from_rows, rotation_from_two_rows, rotation_rows, wrap_deg,
+};
 pub use procrustes::{Scaling, Similarity2, Similarity3, align2, align3, generalized_procrustes};
-pub use projection::WeakPerspective;
+pub use projection::{WeakPerspective, image_to_plane};

@@ -52,16 +52,6 @@ pub fn image_to_plane(p: &Vector2<f64>) -> Vector2<f64> {
     Vector2::new(p.x, -p.y)
 }
 
-/// The inverse of [`image_to_plane`].
-pub fn plane_to_image(p: &Vector2<f64>) -> Vector2<f64> {
-    Vector2::new(p.x, -p.y)
-}
-
-/// Orthographic projection of camera-frame points onto the y-up plane: drops z.
-pub fn orthographic(x: &Vector3<f64>) -> Vector2<f64> {
-    Vector2::new(x.x, x.y)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -99,10 +99,14 @@ impl RotationOneEuro {
     }
 
     /// The smoothed rotation for `r`, observed `dt` seconds after the previous one. A
-    /// non-positive or non-finite `dt` (or `r`) restarts the filter at `r`.
+    /// non-positive or non-finite `dt` restarts the filter at `r`; a non-finite `r` passes
+    /// through and leaves the filter as it was.
     pub fn filter(&mut self, r: &Rotation3<f64>, dt: f64) -> Rotation3<f64> {
+        if !r.matrix().iter().all(|v| v.is_finite()) {
+            return *r;
+        }
         let q = UnitQuaternion::from_rotation_matrix(r);
-        let usable = dt.is_finite() && dt > 0.0 && r.matrix().iter().all(|v| v.is_finite());
+        let usable = dt.is_finite() && dt > 0.0;
         let (prev, dprev) = match self.state {
             Some(s) if usable => s,
             _ => {
@@ -257,6 +261,12 @@ mod tests {
         for dt in [0.0, -1.0, f64::NAN] {
             assert_relative_eq!(f.filter(&r, dt), r, epsilon = 1e-12);
         }
+        // A non-finite rotation passes through without poisoning the next frames.
+        let bad = Rotation3::from_matrix_unchecked(r.matrix().map(|_| f64::NAN));
+        assert!(f.filter(&bad, 0.1).matrix()[(0, 0)].is_nan());
+        let next = f.filter(&r, 0.1);
+        assert!(next.matrix().iter().all(|v| v.is_finite()));
+        assert_relative_eq!(next, r, epsilon = 1e-9);
         for p in [
             OneEuroParams {
                 min_cutoff_hz: 0.0,

@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::train::{TrainOptions, map_bins, subset_of, synthesize_bins};
+use super::train::{TrainOptions, geometry_of, map_bins, subset_of, synthesize_bins};
 use super::{PoseModel, Subset};
 use crate::error::Error;
 use crate::estimate::geometric::GeometryConstants;
@@ -253,9 +253,22 @@ impl Bundle {
         let tri = Triangulation::new(&mean, self.triangles.clone()).map_err(core("triangles"))?;
         let hpr = PaperHpr::new(tri);
         let visibility = VisibilityMap::build_default(&mean, &hpr).map_err(core("triangles"))?;
-        let g = self.geometry;
-        if !(g.lf.is_finite() && g.ln.is_finite() && g.ln > 0.0) {
-            return Err(invalid("geometry", "lf and ln must be finite, ln positive"));
+        // Stored for readers of the file; what is served is recomputed and must agree.
+        let g = geometry_of(&self.scheme, &mean).map_err(core("mean"))?;
+        for (field, stored, derived) in [
+            ("lf", self.geometry.lf, g.lf),
+            ("ln", self.geometry.ln, g.ln),
+            ("axis_tilt", self.geometry.axis_tilt, g.axis_tilt),
+        ] {
+            // Bundles written before axis_tilt existed read it as exactly 0.
+            let legacy = field == "axis_tilt" && stored == 0.0;
+            let agrees = (stored - derived).abs() <= 1e-9 * derived.abs().max(1.0);
+            if !legacy && !agrees {
+                return Err(invalid(
+                    format!("geometry.{field}"),
+                    format!("{stored} does not match the mean shape's {derived}"),
+                ));
+            }
         }
         let mut subsets = Vec::new();
         let own_bins = synthesize_bins(&mean, &hpr, &self.training.regression)

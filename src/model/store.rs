@@ -1,6 +1,6 @@
 //! Bundles on disk: `DIR/model.json`. Writing is atomic: the bundle goes to a temporary sibling
 //! directory, is fsynced, and is renamed into place, so a crash never leaves a half-written
-//! model at `DIR`. With `lib.rs`'s data readers, the only file-system code of the library.
+//! model at `DIR`. With `data.rs`'s readers, the only file-system code of the library.
 
 use std::fs::{self, File};
 use std::io::Write;

@@ -81,6 +81,46 @@ impl RegressionParams {
     }
 }
 
+impl RegressionParams {
+    /// The most training views all grids together may hold (about 1 kB each for 68 points).
+    pub const MAX_VIEWS: usize = 200_000;
+
+    /// Checks what the angle ranges alone cannot: no roll in any grid (the regression de-rolls
+    /// by the eye line and learns the roll-free pose), a bounded number of views, and positive
+    /// ridge candidates.
+    pub fn validate(&self) -> Result<()> {
+        let grids = std::iter::once(&self.coarse).chain(&self.bins);
+        for (k, g) in grids.clone().enumerate() {
+            if g.roll.min != 0.0 || g.roll.max != 0.0 {
+                return Err(Error::param(
+                    format!("regression grid {k} roll"),
+                    format!(
+                        "must be 0..0 (the regression de-rolls by the eye line), got {}..{}",
+                        g.roll.min, g.roll.max
+                    ),
+                ));
+            }
+        }
+        let views: usize = grids.map(PoseGrid::len).sum();
+        if views > Self::MAX_VIEWS {
+            return Err(Error::param(
+                "regression grids",
+                format!(
+                    "{views} training views, over the limit of {}: use larger steps",
+                    Self::MAX_VIEWS
+                ),
+            ));
+        }
+        if let Some(e) = self.epsilons.iter().find(|e| !(e.is_finite() && **e > 0.0)) {
+            return Err(Error::param(
+                "epsilons",
+                format!("ridge candidates must be positive, got {e}"),
+            ));
+        }
+        Ok(())
+    }
+}
+
 fn default_epsilons() -> Vec<f64> {
     vec![1e-7, 1e-6, 1e-5, 1e-4, 1e-3]
 }
@@ -126,14 +166,7 @@ pub fn train(
     let mean: Vec<Vector3<f64>> = frontal.points().to_vec();
     let hpr = PaperHpr::from_frontal(&mean)?;
     let visibility = VisibilityMap::build_default(&mean, &hpr)?;
-    let five_mean: Vec<Vector3<f64>> = SubsetMap::Anchors.map_points(scheme, &mean);
-    let geometry = GeometryConstants::from_mean(&[
-        five_mean[0],
-        five_mean[1],
-        five_mean[2],
-        five_mean[3],
-        five_mean[4],
-    ])?;
+    let geometry = geometry_of(scheme, &mean)?;
 
     let mut subsets = Vec::new();
     let mut names = vec![scheme.name.clone()];
@@ -236,11 +269,18 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
 /// The training views of the model's own scheme over the coarse grid and the fine bins:
 /// projections of the frontal mean with HPR visibility. Subsets take theirs from these with
 /// [`map_bins`] rather than synthesizing again.
+/// The geometric method's constants of a frontal mean shape over `scheme`.
+pub(crate) fn geometry_of(scheme: &Scheme, mean: &[Vector3<f64>]) -> Result<GeometryConstants> {
+    let five = SubsetMap::Anchors.map_points(scheme, mean);
+    GeometryConstants::from_mean(&[five[0], five[1], five[2], five[3], five[4]])
+}
+
 pub(crate) fn synthesize_bins(
     mean: &[Vector3<f64>],
     hpr: &PaperHpr,
     p: &RegressionParams,
 ) -> Result<Vec<ViewBin>> {
+    p.validate()?;
     let mut synth = ViewSynthesizer::new(mean, hpr)?;
     let mut grids = vec![p.coarse];
     grids.extend(p.bins.iter().copied());
@@ -386,4 +426,32 @@ fn choose_epsilon(
         best.ok_or_else(|| Error::param("epsilons", "no candidate ridge parameter given"))?;
     model.set_epsilon(eps)?;
     Ok(model)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn regression_grids_refuse_roll_huge_grids_and_bad_ridges() {
+        RegressionParams::wide().validate().unwrap();
+        let mut p = RegressionParams::paper();
+        p.bins.push(PoseGrid {
+            roll: AngleRange::new(-10.0, 10.0, 5.0).unwrap(),
+            ..PoseGrid::paper()
+        });
+        assert!(p.validate().unwrap_err().to_string().contains("roll"));
+        let mut p = RegressionParams::paper();
+        p.coarse.yaw = AngleRange::new(-90.0, 90.0, 0.1).unwrap();
+        p.coarse.pitch = AngleRange::new(-60.0, 60.0, 0.1).unwrap();
+        assert!(
+            p.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("training views")
+        );
+        let mut p = RegressionParams::paper();
+        p.epsilons = vec![1e-4, 0.0];
+        assert!(p.validate().unwrap_err().to_string().contains("epsilons"));
+    }
 }

@@ -159,6 +159,12 @@ impl Scheme {
     /// The sub-scheme made of `indices` of this one (anchors, mirror and contour carried over).
     /// Fails when an anchor or a mirror partner is not among the kept points.
     pub fn subset(&self, name: &str, indices: &[usize]) -> Result<Scheme> {
+        if let Some(&i) = indices.iter().find(|&&i| i >= self.len()) {
+            return Err(self.invalid(format!(
+                "subset {name}: no point {i} (the scheme has {})",
+                self.len()
+            )));
+        }
         let pos = |i: usize| indices.iter().position(|&k| k == i);
         let map = |v: &[usize], what: &str| -> Result<Vec<usize>> {
             v.iter()
@@ -185,15 +191,7 @@ impl Scheme {
             None => None,
         };
         let contour = self.contour.iter().filter_map(|&i| pos(i)).collect();
-        let points = indices
-            .iter()
-            .map(|&i| {
-                self.points
-                    .get(i)
-                    .cloned()
-                    .ok_or_else(|| self.invalid(format!("no point {i}")))
-            })
-            .collect::<Result<_>>()?;
+        let points = indices.iter().map(|&i| self.points[i].clone()).collect();
         Scheme::new(name, points, anchors, mirror, contour)
     }
 }
@@ -291,6 +289,12 @@ pub fn five() -> Scheme {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_subset_past_the_end_is_an_error() {
+        let e = ibug68().subset("x", &[17, 68]).unwrap_err().to_string();
+        assert!(e.contains("no point 68"), "{e}");
+    }
 
     #[test]
     fn builtins_are_valid_and_sized() {
