@@ -215,6 +215,20 @@ mod tests {
                 RawOptions {
                     custom_grid: Some((
                         RawGrid {
+                            yaw: [-90.0, 90.0, 0.1],
+                            pitch: [-90.0, 90.0, 0.5],
+                            roll: None,
+                        },
+                        vec![],
+                    )),
+                    ..Default::default()
+                },
+                "training views; the limit",
+            ),
+            (
+                RawOptions {
+                    custom_grid: Some((
+                        RawGrid {
                             yaw: [-90.0, 90.0, 1e-6],
                             pitch: [0.0, 0.0, 1.0],
                             roll: None,
@@ -223,7 +237,7 @@ mod tests {
                     )),
                     ..Default::default()
                 },
-                "training views; the limit",
+                "options.grid coarse yaw: invalid parameter angle range",
             ),
             (
                 RawOptions {
