@@ -53,6 +53,7 @@ pub fn authorize(st: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
             .map(HeaderValue::as_bytes),
     )
 }
+
 /// A model's versions in the models folder (also for a model not served yet).
 #[utoipa::path(get, path = "/v1/models/{name}/versions", tag = "registry",
     params(("name" = String, Path, description = "The model's folder name")),
