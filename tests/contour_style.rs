@@ -4,15 +4,21 @@
 
 use facepose::estimate::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
-use facepose::model::default_model;
+use facepose::model::{PoseModel, default_model};
 use facepose::shape::Shape2;
 use nalgebra::Vector2;
 
 /// The mean shape at `a`, with each jaw point that HPR hides moved horizontally onto the
 /// outline of the visible face at its height (the extreme visible point within 6 px of it, on
 /// the side the face turns away from).
+/// The default model, loaded once per test process.
+fn model() -> &'static PoseModel {
+    static MODEL: std::sync::OnceLock<PoseModel> = std::sync::OnceLock::new();
+    MODEL.get_or_init(|| default_model().unwrap().1)
+}
+
 fn two_d_style(a: EulerAngles) -> Shape2 {
-    let (_, model) = default_model().unwrap();
+    let model = model();
     let r = a.to_rotation();
     let cam = WeakPerspective::new(r, 2.0, Vector2::new(300.0, -250.0)).unwrap();
     let proj: Vec<Vector2<f64>> = model.mean.iter().map(|x| cam.project(x)).collect();
@@ -42,7 +48,7 @@ fn two_d_style(a: EulerAngles) -> Shape2 {
 
 #[test]
 fn contour_style_leaves_out_hidden_jaw_points_on_the_outline() {
-    let (_, model) = default_model().unwrap();
+    let model = model();
     for method in [Method::Fit, Method::FitShape] {
         let (mut projected, mut contour) = (0.0, 0.0);
         let poses = [(60.0, 0.0), (70.0, 10.0), (-65.0, -10.0), (-75.0, 5.0)];
@@ -55,7 +61,7 @@ fn contour_style_leaves_out_hidden_jaw_points_on_the_outline() {
                     style,
                     ..EstimateOptions::default()
                 };
-                let e = estimate_with(&model, "ibug68", &lm, &opts).unwrap();
+                let e = estimate_with(model, "ibug68", &lm, &opts).unwrap();
                 geodesic_deg(&e.rotation, &truth.to_rotation())
             };
             projected += err(LandmarkStyle::Projected) / poses.len() as f64;
@@ -70,7 +76,7 @@ fn contour_style_leaves_out_hidden_jaw_points_on_the_outline() {
 
 #[test]
 fn styles_agree_on_a_frontal_face() {
-    let (_, model) = default_model().unwrap();
+    let model = model();
     let truth = EulerAngles::new(5.0, -5.0, 3.0).unwrap();
     let lm = two_d_style(truth);
     let rot = |style| {
@@ -79,9 +85,7 @@ fn styles_agree_on_a_frontal_face() {
             style,
             ..EstimateOptions::default()
         };
-        estimate_with(&model, "ibug68", &lm, &opts)
-            .unwrap()
-            .rotation
+        estimate_with(model, "ibug68", &lm, &opts).unwrap().rotation
     };
     let d = geodesic_deg(&rot(LandmarkStyle::Projected), &rot(LandmarkStyle::Contour));
     assert!(d < 1e-9, "{d}");

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose::data::{data_dir, load_aflw, load_population};
+use facepose::data::{AflwFace, data_dir, load_aflw, load_population};
 use facepose::estimate::Method;
 use facepose::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
 use facepose::eval::paper::{
@@ -109,13 +109,18 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
         if !report.is_empty() {
             report.push('\n');
         }
-        let (text, rows) = run_real(&a, &methods)?;
+        let path = a
+            .dataset
+            .clone()
+            .unwrap_or_else(|| data_dir().join("aflw2000/aflw2000_dev.jsonl"));
+        let faces = load_aflw(&path)?;
+        let (text, rows) = run_real(&a, &path, &faces, &methods)?;
         report.push_str(&text);
         pngs.push((
             REAL_PNG,
             line_chart_png("Real faces: error against |yaw|", &error_by_yaw(&rows))?,
         ));
-        pngs.push((STYLE_PNG, large_yaw_landmarks_png(&a)?));
+        pngs.push((STYLE_PNG, large_yaw_landmarks_png(&faces)?));
         json.insert("real".into(), serde_json::to_value(&rows)?);
     }
     print!("{report}");
@@ -289,13 +294,13 @@ fn robustness_png(paper: &PaperReport) -> Result<Vec<u8>, CliError> {
     )?)
 }
 
-fn run_real(a: &EvalArgs, methods: &[Method]) -> Result<(String, Vec<aflw::AflwRow>), CliError> {
+fn run_real(
+    a: &EvalArgs,
+    path: &Path,
+    faces: &[AflwFace],
+    methods: &[Method],
+) -> Result<(String, Vec<aflw::AflwRow>), CliError> {
     let (bundle, model) = super::load_model(a.model.as_deref())?;
-    let path = a
-        .dataset
-        .clone()
-        .unwrap_or_else(|| data_dir().join("aflw2000/aflw2000_dev.jsonl"));
-    let faces = load_aflw(&path)?;
     let mut rows = Vec::new();
     let mut timing = Vec::new();
     for &m in methods {
@@ -304,7 +309,7 @@ fn run_real(a: &EvalArgs, methods: &[Method]) -> Result<(String, Vec<aflw::AflwR
                 continue;
             }
             let t = Instant::now();
-            let row = aflw::evaluate(&model, &faces, m, s);
+            let row = aflw::evaluate(&model, faces, m, s);
             timing.push(format!(
                 "{m} on {}: {:.1} µs per face",
                 s.name(),
@@ -314,12 +319,15 @@ fn run_real(a: &EvalArgs, methods: &[Method]) -> Result<(String, Vec<aflw::AflwR
         }
     }
     // The diagnostic row: where the error on re-annotated landmarks comes from.
-    let diagnostic = methods.contains(&Method::Auto).then(|| {
-        aflw::aflw_markdown(&[
-            aflw::evaluate(&model, &faces, Method::Auto, Source::Reannotated),
-            aflw::evaluate(&model, &faces, Method::Auto, Source::ReannotatedFittedJaw),
-        ])
-    });
+    let diagnostic = rows
+        .iter()
+        .find(|r| r.method == Method::Auto && r.source == Source::Reannotated)
+        .map(|auto| {
+            aflw::aflw_markdown(&[
+                auto.clone(),
+                aflw::evaluate(&model, faces, Method::Auto, Source::ReannotatedFittedJaw),
+            ])
+        });
     let diagnostic = match diagnostic {
         Some(table) => format!(
             "### Diagnostic: the jaw of the re-annotated landmarks\n\n\
@@ -353,12 +361,7 @@ fn run_real(a: &EvalArgs, methods: &[Method]) -> Result<(String, Vec<aflw::AflwR
 
 /// The first four faces of the dataset with |yaw| > 60°, fitted and re-annotated landmarks over
 /// each other.
-fn large_yaw_landmarks_png(a: &EvalArgs) -> Result<Vec<u8>, CliError> {
-    let path = a
-        .dataset
-        .clone()
-        .unwrap_or_else(|| data_dir().join("aflw2000/aflw2000_dev.jsonl"));
-    let faces = load_aflw(&path)?;
+fn large_yaw_landmarks_png(faces: &[AflwFace]) -> Result<Vec<u8>, CliError> {
     let panels: Vec<LandmarkPanel> = faces
         .iter()
         .filter(|f| f.within_99 && f.yaw.abs() > 60.0)

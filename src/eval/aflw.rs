@@ -66,6 +66,8 @@ pub struct AflwRow {
     pub per_face: Vec<(f64, f64)>,
 }
 
+static IBUG68: std::sync::LazyLock<crate::shape::Scheme> = std::sync::LazyLock::new(ibug68);
+
 /// The landmarks of a face from a source, in the scheme the source is given in.
 pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str, Shape2)> {
     let to_shape =
@@ -82,7 +84,7 @@ pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str
         }
         Source::Five => Ok((
             "five",
-            to_shape(&face.landmarks_reannotated)?.to_five(&ibug68())?,
+            to_shape(&face.landmarks_reannotated)?.to_five(&IBUG68)?,
         )),
     }
 }
