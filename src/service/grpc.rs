@@ -19,7 +19,9 @@ use super::http::{VersionSummary, version_summaries};
 use super::http_registry::versions_response;
 use super::jobs::Job;
 use super::metrics::{self, FaceTally};
-use super::pose::{FacePose, FaceSpec, INLINE_FACES, estimate_face, for_each_face};
+use super::pose::{
+    FacePose, FaceSpec, INLINE_FACES, estimate_face, for_each_face, on_blocking_pool,
+};
 use super::proto::{self, pose_service_server::PoseService};
 use super::registry::{Catalog, ModelSet, ServedModel};
 use super::retrain::{self, chunks::ChunkCollector};
@@ -431,9 +433,8 @@ impl PoseService for PoseApi {
                     ))
                 })??;
             let raw = chunks.finish()?;
-            let prepared = tokio::task::spawn_blocking(move || retrain::prepare(raw))
-                .await
-                .map_err(|e| Status::internal(format!("upload task failed: {e}")))??;
+            let prepared =
+                on_blocking_pool("checking the upload", move || retrain::prepare(raw)).await?;
             let job = retrain::job::submit(&state, prepared)?;
             Ok(job_message(&job))
         }

@@ -16,6 +16,7 @@ use super::errors::{ApiError, ErrorBody};
 use super::http::{discard_body, parse_json, read_body_limited, require_json};
 use super::http_registry::authorize;
 use super::jobs::Job;
+use super::pose::on_blocking_pool;
 use super::retrain::{self, RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
 use crate::model::bundle::sha256_hex;
 use crate::shape::Scheme;
@@ -231,14 +232,13 @@ pub async fn retrain(
         "send fewer shapes",
     )
     .await?;
-    let prepared = tokio::task::spawn_blocking(move || {
+    let prepared = on_blocking_pool("checking the upload", move || {
         let req: RetrainRequest = parse_json(&bytes)?;
         let sha = sha256_hex(&bytes);
         drop(bytes);
         retrain::prepare(req.into_raw(sha)?)
     })
-    .await
-    .map_err(|e| ApiError::internal(format!("upload task failed: {e}")))??;
+    .await?;
     let job = retrain::job::submit(&st, prepared)?;
     let location = HeaderValue::from_str(&format!("/v1/models/jobs/{}", job.id))
         .map_err(|e| ApiError::internal(e.to_string()))?;

@@ -105,6 +105,18 @@ pub fn for_each_face<T, R>(
 #[derive(Debug, Clone, Copy)]
 pub struct DeadlinePassed;
 
+/// Runs fallible blocking work (file I/O, training, validation of an upload) on the blocking
+/// pool; a panic there is an internal error naming `what`, not a crash.
+pub async fn on_blocking_pool<T, F>(what: &str, f: F) -> Result<T, ApiError>
+where
+    F: FnOnce() -> Result<T, ApiError> + Send + 'static,
+    T: Send + 'static,
+{
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::internal(format!("{what} failed: {e}")))?
+}
+
 /// Runs `f` inline when `inline`, else on the blocking pool. Estimation is microseconds per
 /// face: a thread hop only pays off for batches.
 pub async fn run_maybe_blocking<T, F>(inline: bool, f: F) -> Result<T, ApiError>

@@ -8,11 +8,11 @@ use std::sync::Arc;
 
 use super::versions::{self, VersionError};
 use super::{
-    DEFAULT_MODEL, Registry, Resolved, ServedModel, blocking, embedded_version, load_resolved,
-    resolve,
+    DEFAULT_MODEL, Registry, Resolved, ServedModel, embedded_version, load_resolved, resolve,
 };
 use crate::model::bundle::Bundle;
 use crate::service::errors::{ApiError, ErrorKind};
+use crate::service::pose::on_blocking_pool;
 
 impl Registry {
     /// Loads version `version` of model `name`, makes it the folder's active version and
@@ -23,27 +23,30 @@ impl Registry {
         versions::check_name(name).map_err(version_error)?;
         let _changes = self.changes.lock().await;
         let (n, v) = (name.to_string(), version.to_string());
-        let served = blocking(move || -> Result<ServedModel, ApiError> {
-            let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
-            let source = resolve(stored.as_ref(), &n, &v).ok_or_else(|| {
-                version_error(with_embedded(VersionError::NotFound {
-                    name: n.clone(),
-                    version: v.clone(),
-                    existing: stored.as_ref().map(|m| m.ids()).unwrap_or_default(),
-                }))
-            })?;
-            let embedded = matches!(source, Resolved::Embedded);
-            let served = load_resolved(&n, &source).map_err(|e| {
-                ApiError::new(
-                    ErrorKind::Conflict,
-                    format!(
-                        "version {v} of model {n:?} does not load, so it is not activated: {e}"
-                    ),
-                )
-            })?;
-            versions::activate(&dir, &n, &v, embedded).map_err(version_error)?;
-            Ok(served)
-        })
+        let served = on_blocking_pool(
+            "activating a version",
+            move || -> Result<ServedModel, ApiError> {
+                let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
+                let source = resolve(stored.as_ref(), &n, &v).ok_or_else(|| {
+                    version_error(with_embedded(VersionError::NotFound {
+                        name: n.clone(),
+                        version: v.clone(),
+                        existing: stored.as_ref().map(|m| m.ids()).unwrap_or_default(),
+                    }))
+                })?;
+                let embedded = matches!(source, Resolved::Embedded);
+                let served = load_resolved(&n, &source).map_err(|e| {
+                    ApiError::new(
+                        ErrorKind::Conflict,
+                        format!(
+                            "version {v} of model {n:?} does not load, so it is not activated: {e}"
+                        ),
+                    )
+                })?;
+                versions::activate(&dir, &n, &v, embedded).map_err(version_error)?;
+                Ok(served)
+            },
+        )
         .await?;
         let served = self.install(served);
         tracing::info!(model = %served.name, version = %served.version, source = %served.source, "version activated");
@@ -67,7 +70,7 @@ impl Registry {
             vec![]
         };
         let mut failure = None;
-        let written = blocking(move || {
+        let written = on_blocking_pool("writing a version", move || {
             let reserved: Vec<&str> = reserved.iter().map(String::as_str).collect();
             versions::write_version(&dir, &n, &reserved, |v| {
                 make(v).map_err(|e| {
@@ -88,7 +91,7 @@ impl Registry {
         let dir = self.require_dir()?.to_path_buf();
         versions::check_name(name).map_err(version_error)?;
         let (n, v) = (name.to_string(), version.to_string());
-        blocking(move || {
+        on_blocking_pool("deleting a version", move || {
             let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
             let on_disk = stored.as_ref().is_some_and(|m| m.get(&v).is_some());
             if !on_disk && n == DEFAULT_MODEL && v == embedded_version() {

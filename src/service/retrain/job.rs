@@ -16,6 +16,7 @@ use crate::model::{BasisSource, train_from_population};
 use crate::service::AppState;
 use crate::service::errors::ApiError;
 use crate::service::jobs::{Job, JobStage, now_rfc3339};
+use crate::service::pose::on_blocking_pool;
 use crate::shape::Shape2;
 
 /// Registers an accepted upload as a job (429 when the queue is full) and starts it.
@@ -110,7 +111,7 @@ async fn steps(
         Work::Subjects { views, dropped } => {
             jobs.stage(id, JobStage::Validating, 0.0);
             let (st, jid, sp) = (state.clone(), id.to_string(), spec.clone());
-            let v = blocking(move || {
+            let v = on_blocking_pool("structure from motion", move || {
                 reconstruct_all(&sp, &views, dropped, |f| {
                     st.jobs.update(&jid, |j| j.progress = 0.3 * f);
                 })
@@ -126,7 +127,7 @@ async fn steps(
     jobs.stage(id, JobStage::Training, 0.3);
     let sp = spec.clone();
     let kept = validated.shapes.len();
-    let model = blocking(move || {
+    let model = on_blocking_pool("training", move || {
         let basis = BasisSource::Pca(sp.options.components);
         train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
             .map_err(|e| ApiError::invalid(format!("training failed: {e}")))
@@ -195,12 +196,4 @@ fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
         command: spec.origin.to_string(),
         notes,
     }
-}
-
-async fn blocking<T: Send + 'static>(
-    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
-) -> Result<T, ApiError> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ApiError::internal(format!("retraining task failed: {e}")))?
 }
