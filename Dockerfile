@@ -3,10 +3,10 @@
 #   docker build -t facepose .
 #   docker run --rm -p 8080:8080 facepose
 #
-# The binary embeds the default model; models/ is copied as the image's model folder so that
-# more bundles can ship with it. Mount a volume at /var/lib/facepose/models (and point
-# FACEPOSE_MODELS at it) to keep retrained versions across restarts and share them between
-# replicas (deploy/kubernetes/).
+# The binary embeds the default model, served as version 1 while the models folder
+# (/var/lib/facepose/models, writable by the service's user) holds nothing else. Mount a volume
+# there to keep retrained versions across restarts and share them between replicas
+# (deploy/kubernetes/); without one, retrained versions live as long as the container.
 
 FROM rust:1.95-slim-bookworm AS build
 WORKDIR /src
@@ -31,10 +31,9 @@ RUN apt-get update \
  && mkdir -p /var/lib/facepose/models \
  && chown facepose /var/lib/facepose/models
 COPY --from=build /src/target/release/facepose /usr/local/bin/facepose
-COPY --from=build /src/models /usr/share/facepose/models
 USER 10001
 ENV FACEPOSE_ADDR=0.0.0.0:8080 \
-    FACEPOSE_MODELS=/usr/share/facepose/models \
+    FACEPOSE_MODELS=/var/lib/facepose/models \
     FACEPOSE_LOG_FORMAT=json
 EXPOSE 8080
 # Readiness and liveness belong to the orchestrator (GET /readyz, GET /healthz); the image has

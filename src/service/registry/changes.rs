@@ -11,6 +11,7 @@ use super::{
     DEFAULT_MODEL, Registry, Resolved, ServedModel, embedded_version, load_resolved, resolve,
 };
 use crate::model::bundle::Bundle;
+use crate::model::store::StoreError;
 use crate::service::errors::{ApiError, ErrorKind};
 use crate::service::pose::on_blocking_pool;
 
@@ -140,9 +141,50 @@ pub fn version_error(e: VersionError) -> ApiError {
             ApiError::new(ErrorKind::Conflict, e.to_string())
         }
         VersionError::Invalid(m) => ApiError::invalid(m),
+        VersionError::Io { ref source, .. }
+        | VersionError::Store(StoreError::Io { ref source, .. })
+            if matches!(
+                source.kind(),
+                std::io::ErrorKind::PermissionDenied | std::io::ErrorKind::ReadOnlyFilesystem
+            ) =>
+        {
+            tracing::error!(error = %e, "models folder not writable");
+            ApiError::new(
+                ErrorKind::Conflict,
+                format!(
+                    "the models folder is not writable by this server ({e}); an operator must \
+                     mount it read-write for the service's user"
+                ),
+            )
+        }
         VersionError::Io { .. } | VersionError::Store(_) => {
             tracing::error!(error = %e, "models folder");
             ApiError::internal(format!("models folder: {e}"))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_folder_the_server_cannot_write_is_a_conflict_that_says_so() {
+        for kind in [
+            std::io::ErrorKind::PermissionDenied,
+            std::io::ErrorKind::ReadOnlyFilesystem,
+        ] {
+            let e = version_error(VersionError::Io {
+                path: "/models/default/versions/2".into(),
+                source: kind.into(),
+            });
+            assert_eq!(e.kind, ErrorKind::Conflict);
+            assert!(e.message.contains("not writable"), "{}", e.message);
+        }
+        let e = version_error(VersionError::Io {
+            path: "/models".into(),
+            source: std::io::ErrorKind::StorageFull.into(),
+        });
+        assert_ne!(e.kind, ErrorKind::Conflict, "{}", e.message);
     }
 }
