@@ -299,8 +299,8 @@ fn load_model_default() -> facepose::model::PoseModel {
     facepose::model::default_model().unwrap().1
 }
 
-/// (b) Several activations while HTTP clients and a gRPC stream estimate without pause: no
-/// request fails, and both versions answer.
+/// (b) Several activations, then a retrain, while HTTP clients and a gRPC stream estimate
+/// without pause: no request fails, and every version answers.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn swaps_under_load_fail_no_request() {
     let dir = TempDir::new("load");
@@ -333,7 +333,9 @@ async fn swaps_under_load_fail_no_request() {
                             &rotation_json(&v["rotation"]),
                             &rotation(25.0, -10.0, 5.0),
                         );
-                        if err > 0.5 {
+                        // The retrained version (3) has another mean than the face's.
+                        let tolerance = if v["model_version"] == "3" { 5.0 } else { 0.5 };
+                        if err > tolerance {
                             failures.push(format!("pose off by {err}°"));
                         }
                         *versions
@@ -376,7 +378,8 @@ async fn swaps_under_load_fail_no_request() {
             match &f.result {
                 Some(facepose::service::proto::face_result::Result::Pose(p)) => {
                     let err = geodesic_deg(&rotation_flat(&p.rotation), &rotation(-30.0, 5.0, 0.0));
-                    assert!(err < 0.5, "stream pose off by {err}°");
+                    let tolerance = if r.model_version == "3" { 5.0 } else { 0.5 };
+                    assert!(err < tolerance, "stream pose off by {err}°");
                 }
                 other => panic!("frame {frames}: {other:?}"),
             }
@@ -395,6 +398,24 @@ async fn swaps_under_load_fail_no_request() {
         assert_eq!(v["version"], version);
         tokio::time::sleep(Duration::from_millis(60)).await;
     }
+    // A retrain under the same load: trained beside it and swapped in as version 3.
+    let shapes = population(40, |p| p);
+    let (s, job) = post_admin(
+        &c,
+        &server,
+        "/v1/models",
+        &json!({"shapes": shapes_json(&shapes), "options": quick_options()}),
+    )
+    .await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+    let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
+    assert_eq!(
+        (&job["state"], &job["version"]),
+        (&json!("succeeded"), &json!("3")),
+        "{job}"
+    );
+    assert_eq!(served_version(&c, &server).await, "3");
+    tokio::time::sleep(Duration::from_millis(100)).await;
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let mut seen = std::collections::BTreeMap::<String, usize>::new();
     let mut answered = 0;
@@ -411,8 +432,8 @@ async fn swaps_under_load_fail_no_request() {
         answered > 50 && frames > 20,
         "{answered} requests, {frames} frames"
     );
-    assert_eq!(seen.keys().collect::<Vec<_>>(), ["1", "2"], "{seen:?}");
-    assert_eq!(stream_versions.len(), 2, "{stream_versions:?}");
+    assert_eq!(seen.keys().collect::<Vec<_>>(), ["1", "2", "3"], "{seen:?}");
+    assert!(stream_versions.len() >= 2, "{stream_versions:?}");
     let metrics = c
         .get(server.url("/metrics"))
         .send()
@@ -422,7 +443,7 @@ async fn swaps_under_load_fail_no_request() {
         .await
         .unwrap();
     assert!(
-        metrics.contains("facepose_model_swaps_total{name=\"default\"} 8"),
+        metrics.contains("facepose_model_swaps_total{name=\"default\"} 9"),
         "{}",
         metrics
             .lines()
@@ -963,6 +984,9 @@ async fn the_auth_matrix() {
             dir.arg(),
             "--admin-token-file",
             token_file.to_str().unwrap(),
+            // Everything the server can log, so that a token in any message shows.
+            "--log",
+            "debug",
         ],
         None,
         &[],
@@ -1227,9 +1251,10 @@ async fn replicas_sharing_a_folder_converge() {
         let (s, v) = activate(&c, here, version).await;
         assert_eq!(s, StatusCode::OK, "{v}");
         let took = follows(there, version).await;
-        // The poll period, plus loading the model (~0.1 s) and slack for a busy machine.
+        // The poll period, plus loading the model (~0.1 s) and slack for a busy machine: "a
+        // few seconds" (the hard bound of 10 s is in `follows`).
         assert!(
-            took < poll + Duration::from_millis(1500),
+            took < poll + Duration::from_secs(4),
             "followed after {took:?}"
         );
         let (_, v) = get(&c, there, "/v1/models/default/versions").await;

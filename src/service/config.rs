@@ -25,10 +25,11 @@ pub struct ServeArgs {
     /// address is logged as `listening addr=...`).
     #[arg(long, env = "FACEPOSE_ADDR", default_value = "0.0.0.0:8080")]
     pub addr: String,
-    /// Models folder: each subfolder with a model.json is a model named by its `name` field.
+    /// Models folder: each subfolder `<name>` is a model, served at the version its `ACTIVE`
+    /// file names (`versions/<N>/model.json`), else its deployed `model.json` (docs/FORMATS.md).
     /// Default: ./models if it exists. Without a model named `default` there, the embedded
-    /// default model serves as `default`. A broken bundle stops the start with a message naming
-    /// the file and the field.
+    /// default model serves as `default` (version 1). A broken active bundle stops the start
+    /// with a message naming the file and the field.
     #[arg(long, env = "FACEPOSE_MODELS")]
     pub models: Option<PathBuf>,
     /// Most faces in one batch request (HTTP /v1/pose:batch, gRPC EstimateBatch) or one stream

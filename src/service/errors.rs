@@ -166,6 +166,29 @@ impl ApiError {
         )
     }
 
+    /// A retraining upload over `--upload-timeout`.
+    pub fn upload_timeout(limit: std::time::Duration) -> Self {
+        Self::new(
+            ErrorKind::Timeout,
+            format!(
+                "the upload took longer than {limit:?} to arrive and be checked (--upload-timeout); \
+                 send fewer shapes per upload or from closer to the server"
+            ),
+        )
+    }
+
+    /// A change to the models folder (activation, deletion) that outlived the request's time:
+    /// it still completes in the background.
+    pub fn change_timeout(limit: std::time::Duration) -> Self {
+        Self::new(
+            ErrorKind::Timeout,
+            format!(
+                "the change took longer than {limit:?} (--request-timeout) and goes on in the \
+                 background; see GET /v1/models/{{name}}/versions for the outcome"
+            ),
+        )
+    }
+
     pub fn shutting_down() -> Self {
         Self::new(
             ErrorKind::Unavailable,

@@ -464,6 +464,11 @@ impl PoseService for PoseApi {
         let state = self.state.clone();
         unary(self, "ListVersions", async move {
             let name = request.into_inner().name;
+            if name.is_empty() {
+                return Err(ApiError::invalid(
+                    "missing name: set ListVersionsRequest.name",
+                ));
+            }
             state.registry.refresh_catalog().await;
             let v = versions_response(&state, &name)?;
             Ok(proto::ListVersionsResponse {

@@ -879,7 +879,9 @@ async fn limits(State(st): State<SharedState>, mut req: Request, next: Next) -> 
     let Ok(_permit) = st.permits.clone().try_acquire_owned() else {
         return ApiError::overloaded(st.limits.max_concurrency).into_response();
     };
-    let upload = req.method() == HttpMethod::POST && req.uri().path() == "/v1/models";
+    let path = req.uri().path();
+    let upload = req.method() == HttpMethod::POST && path == "/v1/models";
+    let change = path.starts_with("/v1/models/") && path.contains("/versions/");
     let timeout = if upload {
         st.limits.upload_timeout
     } else {
@@ -889,6 +891,8 @@ async fn limits(State(st): State<SharedState>, mut req: Request, next: Next) -> 
         .insert(Deadline(Instant::now() + timeout));
     match tokio::time::timeout(timeout, next.run(req)).await {
         Ok(resp) => resp,
+        Err(_) if upload => ApiError::upload_timeout(timeout).into_response(),
+        Err(_) if change => ApiError::change_timeout(timeout).into_response(),
         Err(_) => ApiError::timeout(timeout).into_response(),
     }
 }

@@ -42,8 +42,11 @@ impl Server {
     ) -> Server {
         let started = Instant::now();
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_facepose"));
-        cmd.args(["serve", "--addr", "127.0.0.1:0", "--log", "info"])
-            .args(args)
+        cmd.args(["serve", "--addr", "127.0.0.1:0"]);
+        if !args.contains(&"--log") {
+            cmd.args(["--log", "info"]);
+        }
+        cmd.args(args)
             .env_remove("FACEPOSE_ADDR")
             .env_remove("FACEPOSE_LOG_FORMAT")
             .env_remove("FACEPOSE_ADMIN_TOKEN")
