@@ -406,18 +406,9 @@ pub(super) async fn read_body_limited(
             format!("could not read the request body: {e}"),
         )
     };
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
+    let declared = declared_length(headers);
     if let Some(n) = declared.filter(|&n| n > limit as u64) {
-        // A client waiting for `100 Continue` reads the answer without sending the body.
-        let waits = headers
-            .get(header::EXPECT)
-            .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"100-continue"));
-        if !waits && n <= DRAIN_LIMIT {
-            drain(body, 0).await;
-        }
+        discard_body(headers, body).await;
         return Err(too_large(Some(n)));
     }
     let mut first: Option<Bytes> = None;
@@ -454,16 +445,21 @@ pub(super) async fn read_body_limited(
 /// token, say), within the same bounds as an over-limit body, so that the client reads the
 /// answer rather than a reset connection.
 pub(super) async fn discard_body(headers: &HeaderMap, body: Body) {
+    // A client waiting for `100 Continue` reads the answer without sending the body.
     let waits = headers
         .get(header::EXPECT)
         .is_some_and(|v| v.as_bytes().eq_ignore_ascii_case(b"100-continue"));
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    if !waits && declared.is_none_or(|n| n <= DRAIN_LIMIT) {
+    if !waits && declared_length(headers).is_none_or(|n| n <= DRAIN_LIMIT) {
         drain(body, 0).await;
     }
+}
+
+/// The body length the request declares (`Content-Length`), if any.
+fn declared_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
 }
 
 /// Reads and discards the rest of a body, up to [`DRAIN_LIMIT`] bytes in all (counting `seen`)
