@@ -92,7 +92,10 @@ pub fn run(args: ServeArgs) -> Result<(), ServeError> {
     init_logging(&cfg);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(cfg.workers)
-        .max_blocking_threads(cfg.workers.max(2))
+        // CPU batches take up to one blocking thread per core; the rest is for the work that
+        // waits (a training job, models-folder locks and fsyncs, the watcher's reads), so that
+        // a slow volume or a long training never leaves batches without a thread.
+        .max_blocking_threads(cfg.workers + 4)
         .thread_name("facepose")
         .enable_all()
         .build()?;
