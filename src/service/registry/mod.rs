@@ -207,8 +207,10 @@ impl ModelSet {
 pub struct Registry {
     current: ArcSwap<ModelSet>,
     dir: Option<PathBuf>,
-    /// Serializes changes of the set made by this process (activations, the watcher).
-    changes: tokio::sync::Mutex<()>,
+    /// Serializes changes of the set made by this process (activations, the watcher). An
+    /// activation holds it in a task of its own, so a request that goes away never releases
+    /// it before the change is done.
+    changes: Arc<tokio::sync::Mutex<()>>,
     catalog: ArcSwap<Catalog>,
     /// What the watcher could not serve, by model folder.
     failures: Mutex<BTreeMap<String, watch::Failure>>,
@@ -227,7 +229,7 @@ impl Registry {
         Registry {
             current: ArcSwap::from_pointee(set),
             dir,
-            changes: tokio::sync::Mutex::new(()),
+            changes: Arc::new(tokio::sync::Mutex::new(())),
             catalog: ArcSwap::from_pointee(Catalog::default()),
             failures: Mutex::new(BTreeMap::new()),
             meta: Mutex::new(HashMap::new()),
@@ -448,6 +450,41 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
         models.push(m);
     }
     ModelSet::new(models, DEFAULT_MODEL)
+}
+
+/// Models folders for the unit tests of the registry.
+#[cfg(test)]
+pub(crate) mod testing {
+    use std::fs;
+    use std::path::{Path, PathBuf};
+
+    use crate::model::bundle::Bundle;
+
+    /// A fresh empty folder under the temporary directory.
+    pub fn temp_root(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!(
+            "facepose-registry-{tag}-{}",
+            super::versions::unique_suffix()
+        ));
+        fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// The default bundle renamed.
+    pub fn bundle(name: &str, version: &str) -> Bundle {
+        let mut b = Bundle::parse(crate::model::DEFAULT_BUNDLE).unwrap();
+        b.name = name.into();
+        b.version = version.into();
+        b.checksum = b.compute_checksum().unwrap();
+        b
+    }
+
+    /// Writes a new version of `name`; its id.
+    pub fn add(root: &Path, name: &str) -> String {
+        super::versions::write_version(root, name, &[], |v| Ok(bundle(name, v)))
+            .unwrap()
+            .0
+    }
 }
 
 #[cfg(test)]
