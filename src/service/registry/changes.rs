@@ -51,6 +51,7 @@ impl Registry {
         n: String,
         v: String,
     ) -> Result<Arc<ServedModel>, ApiError> {
+        let set = self.snapshot();
         let served = on_blocking_pool(
             "activating a version",
             move || -> Result<ServedModel, ApiError> {
@@ -71,6 +72,9 @@ impl Registry {
                         ),
                     )
                 })?;
+                if let Some(e) = set.name_conflict(&served.name, &n) {
+                    return Err(e);
+                }
                 versions::activate(&dir, &n, &v, embedded).map_err(version_error)?;
                 Ok(served)
             },
@@ -227,6 +231,32 @@ mod tests {
         reg.activate("m", "1").await.unwrap();
         assert_eq!(read_pointer(&root.join("m")).unwrap().as_deref(), Some("1"));
         assert_eq!(reg.snapshot().get(Some("m")).unwrap().version, "1");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[tokio::test]
+    async fn activating_a_name_served_from_another_folder_is_a_conflict() {
+        let root = temp_root("clash");
+        // The folder "a" serves its legacy bundle, named "shared".
+        std::fs::create_dir_all(root.join("a")).unwrap();
+        std::fs::write(
+            root.join("a").join(crate::model::store::MODEL_FILE),
+            super::super::testing::bundle("shared", "7").to_json(),
+        )
+        .unwrap();
+        assert_eq!(add(&root, "shared"), "1");
+        let reg = Arc::new(Registry::with_dir(
+            load_models(Some(&root)).unwrap(),
+            Some(root.clone()),
+        ));
+        let e = reg.activate("shared", "1").await.unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("already served from the folder \"a\""),
+            "{e}"
+        );
+        assert_eq!(read_pointer(&root.join("shared")).unwrap(), None);
+        assert_eq!(reg.snapshot().by_store("a").unwrap().name, "shared");
         std::fs::remove_dir_all(&root).unwrap();
     }
 

@@ -152,9 +152,16 @@ impl ModelSet {
         })
     }
 
-    /// This set with `model` added, or replacing the model of the same name.
+    /// This set with `model` added, replacing the model of the same name and any other model
+    /// served from the same folder entry (a folder serves one model; the default model's
+    /// entry is kept so that the set always has it).
     pub fn with_model(&self, model: Arc<ServedModel>) -> ModelSet {
         let mut models = self.models.clone();
+        if let Some(store) = model.store.as_deref() {
+            models.retain(|name, m| {
+                *name == self.default || *name == model.name || m.store.as_deref() != Some(store)
+            });
+        }
         models.insert(model.name.clone(), model);
         ModelSet {
             models,
@@ -171,6 +178,24 @@ impl ModelSet {
                 format!(
                     "unknown model {name:?}; loaded models: {}",
                     self.models.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            )
+        })
+    }
+
+    /// Why `name` cannot be served from the folder entry `store`: a model of that name is
+    /// already served from another folder.
+    pub fn name_conflict(&self, name: &str, store: &str) -> Option<ApiError> {
+        let other = self.models.get(name)?;
+        let other_store = other.store.as_deref()?;
+        (other_store != store).then(|| {
+            ApiError::new(
+                ErrorKind::Conflict,
+                format!(
+                    "model {name:?} is already served from the folder {other_store:?} ({}); \
+                     the folder {store:?} cannot serve a model of the same name: rename one of \
+                     them",
+                    other.source
                 ),
             )
         })
@@ -275,7 +300,12 @@ impl Registry {
         let old = self
             .current
             .rcu(|set| Arc::new(set.with_model(model.clone())));
-        let previous = old.get(Some(&model.name)).ok().cloned();
+        let previous = model
+            .store
+            .as_deref()
+            .and_then(|s| old.by_store(s))
+            .or_else(|| old.get(Some(&model.name)).ok())
+            .cloned();
         super::metrics::model_swapped(previous.as_deref(), &model, old.default_name());
         let mut failures = lock(&self.failures);
         if failures
@@ -508,6 +538,42 @@ mod tests {
         assert_eq!(err.kind, ErrorKind::NotFound);
         assert!(err.message.contains("loaded models: default"), "{err}");
         assert_eq!(embedded_version(), m.version);
+    }
+
+    fn embedded_as(name: &str, store: &str) -> ServedModel {
+        let mut m = load_resolved(store, &Resolved::Embedded).unwrap();
+        m.name = name.into();
+        m
+    }
+
+    #[test]
+    fn a_folder_serves_one_model_and_names_do_not_clash() {
+        let set = ModelSet::new(
+            vec![
+                embedded_as("default", "default"),
+                embedded_as("legacy-name", "x"),
+            ],
+            "default",
+        )
+        .unwrap();
+        // The folder x now serves a version named after it: the old name goes.
+        let set = set.with_model(Arc::new(embedded_as("x", "x")));
+        assert_eq!(
+            set.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(),
+            ["default", "x"]
+        );
+        assert_eq!(set.by_store("x").unwrap().name, "x");
+        // The default model's entry stays even if its folder serves another name.
+        let set = set.with_model(Arc::new(embedded_as("other", "default")));
+        assert!(set.get(None).is_ok());
+        let e = set.name_conflict("x", "y").unwrap();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("already served from the folder \"x\""),
+            "{e}"
+        );
+        assert!(set.name_conflict("x", "x").is_none());
+        assert!(set.name_conflict("new", "y").is_none());
     }
 
     #[test]

@@ -22,6 +22,13 @@ use crate::shape::Shape2;
 /// Registers an accepted upload as a job (429 when the queue is full) and starts it.
 pub fn submit(state: &Arc<AppState>, p: Prepared) -> Result<Job, ApiError> {
     let spec = p.spec;
+    if let Some(e) = state
+        .registry
+        .snapshot()
+        .name_conflict(&spec.model, &spec.model)
+    {
+        return Err(e);
+    }
     let job = state.jobs.create(
         &spec.model,
         spec.kind,
