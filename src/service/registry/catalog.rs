@@ -76,7 +76,7 @@ fn read_catalog(
 ) -> Result<Catalog, VersionError> {
     let mut models = BTreeMap::new();
     let mut seen = Vec::new();
-    for m in versions::scan(dir)? {
+    for m in versions::scan(dir, false)? {
         let mut list = Vec::new();
         for v in &m.versions {
             let mtime = std::fs::metadata(&v.file).and_then(|x| x.modified()).ok();

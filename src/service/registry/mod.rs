@@ -435,7 +435,7 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
                     ),
                 });
             }
-            versions::scan(d)?
+            versions::scan(d, true)?
         }
         None => vec![],
     };
