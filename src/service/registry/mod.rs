@@ -27,10 +27,9 @@ pub mod pointer;
 pub mod versions;
 pub mod watch;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::SystemTime;
 
 use arc_swap::ArcSwap;
 
@@ -239,8 +238,11 @@ pub struct Registry {
     catalog: ArcSwap<Catalog>,
     /// What the watcher could not serve, by model folder.
     failures: Mutex<BTreeMap<String, watch::Failure>>,
-    /// Version metadata by bundle file, with the file's modification time.
-    meta: Mutex<HashMap<PathBuf, (Option<SystemTime>, VersionInfo)>>,
+    /// Version metadata by bundle file, with the file's modification time; locked by the
+    /// reader of the folder for the whole read, so refreshes read one after the other.
+    meta: Arc<Mutex<catalog::MetaCache>>,
+    /// Refreshes of the catalog: serialized and coalesced ([`catalog`]).
+    refresh: catalog::Refresh,
 }
 
 impl Registry {
@@ -257,7 +259,8 @@ impl Registry {
             changes: Arc::new(tokio::sync::Mutex::new(())),
             catalog: ArcSwap::from_pointee(Catalog::default()),
             failures: Mutex::new(BTreeMap::new()),
-            meta: Mutex::new(HashMap::new()),
+            meta: Arc::new(Mutex::new(catalog::MetaCache::default())),
+            refresh: catalog::Refresh::default(),
         }
     }
 
