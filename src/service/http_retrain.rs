@@ -220,10 +220,14 @@ pub async fn retrain(
     let refused = authorize(&st, &headers)
         .and_then(|()| st.registry.require_dir().map(drop))
         .and_then(|()| require_json(&headers));
-    if let Err(e) = refused {
-        discard_body(&headers, body).await;
-        return Err(e);
-    }
+    // A place in the queue before the body is read: uploads in memory are bounded too.
+    let slot = match refused.and_then(|()| st.jobs.reserve()) {
+        Ok(slot) => slot,
+        Err(e) => {
+            discard_body(&headers, body).await;
+            return Err(e);
+        }
+    };
     let bytes = read_body_limited(
         &headers,
         body,
@@ -239,7 +243,7 @@ pub async fn retrain(
         retrain::prepare(req.into_raw(sha)?)
     })
     .await?;
-    let job = retrain::job::submit(&st, prepared)?;
+    let job = retrain::job::submit_reserved(&st, prepared, slot)?;
     let location = HeaderValue::from_str(&format!("/v1/models/jobs/{}", job.id))
         .map_err(|e| ApiError::internal(e.to_string()))?;
     Ok((
