@@ -170,6 +170,14 @@ pub fn version_error(e: VersionError) -> ApiError {
             ApiError::new(ErrorKind::Conflict, e.to_string())
         }
         VersionError::Invalid(m) => ApiError::invalid(m),
+        VersionError::Store(StoreError::Exists { ref path }) => ApiError::new(
+            ErrorKind::Conflict,
+            format!(
+                "{} already exists in the models folder (written outside this service?); the \
+                 version was not written: retry, or remove the entry",
+                path.display()
+            ),
+        ),
         VersionError::Io { ref source, .. }
         | VersionError::Store(StoreError::Io { ref source, .. })
             if matches!(
@@ -278,5 +286,14 @@ mod tests {
             source: std::io::ErrorKind::StorageFull.into(),
         });
         assert_ne!(e.kind, ErrorKind::Conflict, "{}", e.message);
+        let e = version_error(VersionError::Store(StoreError::Exists {
+            path: "/models/m/versions/2".into(),
+        }));
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("versions/2 already exists"),
+            "{}",
+            e.message
+        );
     }
 }

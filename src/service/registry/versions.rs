@@ -358,6 +358,10 @@ pub fn write_version(
         let f = entry.file_name().to_string_lossy().into_owned();
         if let Some(id) = f.strip_prefix('.').and_then(|s| s.strip_suffix(".deleted")) {
             used.push(id.to_string());
+        } else if numeric(&f).is_some() {
+            // Every numbered entry counts, also one without a bundle (copied in by hand,
+            // damaged): its name is taken.
+            used.push(f);
         }
     }
     let version = next_id(used.iter().map(String::as_str));
@@ -651,6 +655,18 @@ mod tests {
         for d in [&lf, &locked] {
             fs::set_permissions(d, fs::Permissions::from_mode(0o755)).unwrap();
         }
+        fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn a_numbered_entry_without_a_bundle_takes_its_id() {
+        let root = temp_root("nobundle");
+        assert_eq!(add(&root, "m"), "1");
+        let vdir = root.join("m").join(VERSIONS_DIR);
+        fs::create_dir_all(vdir.join("2")).unwrap();
+        fs::write(vdir.join("5"), "not a folder").unwrap();
+        assert_eq!(add(&root, "m"), "6");
+        assert_eq!(scan_model(&root, "m").unwrap().unwrap().ids(), ["1", "6"]);
         fs::remove_dir_all(&root).unwrap();
     }
 
