@@ -246,7 +246,7 @@ pub struct Registry {
 }
 
 impl Registry {
-    /// A registry without a models folder (the set never changes but by [`Registry::replace`]).
+    /// A registry without a models folder (the set never changes).
     pub fn new(set: ModelSet) -> Self {
         Self::with_dir(set, None)
     }
@@ -270,7 +270,9 @@ impl Registry {
     }
 
     /// Replaces the set atomically and returns the previous one. Requests in progress finish on
-    /// the set they started with.
+    /// the set they started with. (The service changes the set one model at a time, through
+    /// activations and the watcher.)
+    #[cfg(test)]
     pub fn replace(&self, set: ModelSet) -> Arc<ModelSet> {
         self.current.swap(Arc::new(set))
     }

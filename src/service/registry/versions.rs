@@ -31,11 +31,11 @@
 
 use std::fs::{self, File, OpenOptions};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use super::pointer::{next_id, numeric, read_pointer, write_pointer};
 use crate::model::bundle::Bundle;
-use crate::model::store::{MODEL_FILE, StoreError, write_bundle_dir};
+use crate::model::store::{self, MODEL_FILE, StoreError, write_bundle_dir};
 
 /// The folder of numbered versions.
 pub const VERSIONS_DIR: &str = "versions";
@@ -322,16 +322,10 @@ impl Drop for Lock {
     }
 }
 
-pub(super) fn unique_suffix() -> String {
-    let nanos = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    format!("{}-{nanos}", std::process::id())
-}
+pub(super) use crate::model::store::unique_suffix;
 
 pub(super) fn sync_dir(dir: &Path) -> Result<(), VersionError> {
-    File::open(dir).and_then(|d| d.sync_all()).map_err(io(dir))
+    store::sync_dir(dir).map_err(io(dir))
 }
 
 /// Writes a new version of model `name` under `root` and returns its id and bundle file. The
