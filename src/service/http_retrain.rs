@@ -264,3 +264,69 @@ pub async fn get_job(
 ) -> Result<Json<Job>, ApiError> {
     Ok(Json(st.jobs.get(&id)?))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::config::Limits;
+    use crate::service::errors::ErrorKind;
+    use crate::service::registry::{Registry, load_models, testing::temp_root};
+    use crate::service::{auth, jobs, metrics, shutdown};
+    use std::time::Duration;
+
+    #[tokio::test]
+    async fn a_full_queue_refuses_an_upload_before_reading_it() {
+        let root = temp_root("queue");
+        let limits = Limits {
+            max_batch: 10,
+            max_body: 1 << 20,
+            request_timeout: Duration::from_secs(5),
+            max_concurrency: 4,
+            max_streams: 4,
+            max_upload: 16,
+            upload_timeout: Duration::from_secs(5),
+        };
+        let st = Arc::new(AppState {
+            registry: Arc::new(Registry::with_dir(
+                load_models(Some(&root)).unwrap(),
+                Some(root.clone()),
+            )),
+            admin: auth::AdminToken::new("secret-token-for-tests"),
+            jobs: jobs::Jobs::new(0),
+            limits,
+            lifecycle: shutdown::Lifecycle::default(),
+            metrics: metrics::Metrics::install(),
+            permits: Arc::new(tokio::sync::Semaphore::new(4)),
+            streams: Arc::new(tokio::sync::Semaphore::new(4)),
+            openapi: String::new(),
+        });
+        let mut headers = HeaderMap::new();
+        headers.insert(
+            header::AUTHORIZATION,
+            HeaderValue::from_static("Bearer secret-token-for-tests"),
+        );
+        headers.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
+        let body = || Body::from(vec![b' '; 100]);
+        // With a free slot, the body is read (and is over --max-upload here).
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        // The only slot is taken (a job in progress): refused before the body is read.
+        let held = st.jobs.reserve().unwrap();
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Overloaded, "{}", e.message);
+        assert!(e.message.contains("retry later"), "{}", e.message);
+        drop(held);
+        let e = retrain(State(st.clone()), headers, body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}
