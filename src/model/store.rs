@@ -59,6 +59,20 @@ pub fn load_model(path: &Path) -> Result<(Bundle, PoseModel), StoreError> {
     Ok((bundle, model))
 }
 
+/// A suffix for temporary names no other writer uses: the process id and the time in ns.
+pub(crate) fn unique_suffix() -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos())
+        .unwrap_or(0);
+    format!("{}-{nanos}", std::process::id())
+}
+
+/// Makes the entries of the folder `dir` durable (fsync of the folder).
+pub(crate) fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    File::open(dir).and_then(|d| d.sync_all())
+}
+
 /// Writes `bundle` as the new directory `dir` atomically. Fails if `dir` exists.
 pub fn write_bundle_dir(dir: &Path, bundle: &Bundle) -> Result<(), StoreError> {
     if dir.exists() {
@@ -73,11 +87,7 @@ pub fn write_bundle_dir(dir: &Path, bundle: &Bundle) -> Result<(), StoreError> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "model".into());
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let tmp = parent.join(format!(".{base}.tmp-{}-{nanos}", std::process::id()));
+    let tmp = parent.join(format!(".{base}.tmp-{}", unique_suffix()));
     let result = (|| {
         fs::create_dir(&tmp).map_err(io(&tmp))?;
         let file = tmp.join(MODEL_FILE);
@@ -85,13 +95,9 @@ pub fn write_bundle_dir(dir: &Path, bundle: &Bundle) -> Result<(), StoreError> {
         f.write_all(bundle.to_json().as_bytes())
             .map_err(io(&file))?;
         f.sync_all().map_err(io(&file))?;
-        File::open(&tmp)
-            .and_then(|d| d.sync_all())
-            .map_err(io(&tmp))?;
+        sync_dir(&tmp).map_err(io(&tmp))?;
         fs::rename(&tmp, dir).map_err(io(dir))?;
-        File::open(&parent)
-            .and_then(|d| d.sync_all())
-            .map_err(io(&parent))
+        sync_dir(&parent).map_err(io(&parent))
     })();
     if result.is_err() {
         let _ = fs::remove_dir_all(&tmp);

@@ -220,10 +220,14 @@ pub async fn retrain(
     let refused = authorize(&st, &headers)
         .and_then(|()| st.registry.require_dir().map(drop))
         .and_then(|()| require_json(&headers));
-    if let Err(e) = refused {
-        discard_body(&headers, body).await;
-        return Err(e);
-    }
+    // A place in the queue before the body is read: uploads in memory are bounded too.
+    let slot = match refused.and_then(|()| st.jobs.reserve()) {
+        Ok(slot) => slot,
+        Err(e) => {
+            discard_body(&headers, body).await;
+            return Err(e);
+        }
+    };
     let bytes = read_body_limited(
         &headers,
         body,
@@ -239,7 +243,7 @@ pub async fn retrain(
         retrain::prepare(req.into_raw(sha)?)
     })
     .await?;
-    let job = retrain::job::submit(&st, prepared)?;
+    let job = retrain::job::submit_reserved(&st, prepared, slot)?;
     let location = HeaderValue::from_str(&format!("/v1/models/jobs/{}", job.id))
         .map_err(|e| ApiError::internal(e.to_string()))?;
     Ok((
@@ -259,4 +263,70 @@ pub async fn get_job(
     Path(id): Path<String>,
 ) -> Result<Json<Job>, ApiError> {
     Ok(Json(st.jobs.get(&id)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::config::Limits;
+    use crate::service::errors::ErrorKind;
+    use crate::service::registry::{Registry, load_models, testing::temp_root};
+    use crate::service::{auth, jobs, metrics, shutdown};
+    use std::time::Duration;
+
+    #[tokio::test]
+    async fn a_full_queue_refuses_an_upload_before_reading_it() {
+        let root = temp_root("queue");
+        let limits = Limits {
+            max_batch: 10,
+            max_body: 1 << 20,
+            request_timeout: Duration::from_secs(5),
+            max_concurrency: 4,
+            max_streams: 4,
+            max_upload: 16,
+            upload_timeout: Duration::from_secs(5),
+        };
+        let st = Arc::new(AppState {
+            registry: Arc::new(Registry::with_dir(
+                load_models(Some(&root)).unwrap(),
+                Some(root.clone()),
+            )),
+            admin: auth::AdminToken::new("secret-token-for-tests"),
+            jobs: jobs::Jobs::new(0),
+            limits,
+            lifecycle: shutdown::Lifecycle::default(),
+            metrics: metrics::Metrics::install(),
+            permits: Arc::new(tokio::sync::Semaphore::new(4)),
+            streams: Arc::new(tokio::sync::Semaphore::new(4)),
+            openapi: String::new(),
+        });
+        let mut headers = HeaderMap::new();
+        headers.insert(
+            header::AUTHORIZATION,
+            HeaderValue::from_static("Bearer secret-token-for-tests"),
+        );
+        headers.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
+        let body = || Body::from(vec![b' '; 100]);
+        // With a free slot, the body is read (and is over --max-upload here).
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        // The only slot is taken (a job in progress): refused before the body is read.
+        let held = st.jobs.reserve().unwrap();
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Overloaded, "{}", e.message);
+        assert!(e.message.contains("retry later"), "{}", e.message);
+        drop(held);
+        let e = retrain(State(st.clone()), headers, body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

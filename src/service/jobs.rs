@@ -3,8 +3,10 @@
 //!
 //! - One training runs at a time (a permit of a fair semaphore: jobs start in the order they
 //!   were accepted); training runs on the blocking pool, off the request path.
-//! - At most `--max-queued-jobs` jobs wait for the trainer; an upload beyond that is refused
-//!   at once with 429 / UNAVAILABLE (retry later) rather than holding its shapes in memory.
+//! - At most `--max-queued-jobs` jobs wait for the trainer: an upload takes a slot
+//!   ([`Jobs::reserve`]) before its body is read, and the job keeps it until it ends; an
+//!   upload beyond that is refused at once with 429 / UNAVAILABLE (retry later), so uploads in
+//!   memory are bounded too.
 //! - Finished jobs are kept for [`JOB_TTL`], and at most [`MAX_JOBS`] jobs are kept in all
 //!   (the oldest finished ones go first).
 //! - Job ids are per replica: the table is in memory, so a job is visible only on the replica
@@ -125,8 +127,15 @@ struct Entry {
 pub struct Jobs {
     table: Mutex<BTreeMap<String, Entry>>,
     trainer: Arc<Semaphore>,
+    /// Uploads being received or checked and jobs not finished: `max_queued + 1` permits.
+    slots: Arc<Semaphore>,
     max_queued: usize,
 }
+
+/// A place in the trainer's queue, taken before an upload is read; held by the job until it
+/// ends.
+#[derive(Debug)]
+pub struct Slot(#[allow(dead_code)] OwnedSemaphorePermit);
 
 /// The current time, RFC 3339, UTC.
 pub fn now_rfc3339() -> String {
@@ -141,6 +150,7 @@ impl Jobs {
         Jobs {
             table: Mutex::new(BTreeMap::new()),
             trainer: Arc::new(Semaphore::new(1)),
+            slots: Arc::new(Semaphore::new(max_queued.saturating_add(1))),
             max_queued,
         }
     }
@@ -149,7 +159,28 @@ impl Jobs {
         self.table.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Registers a new job (state `queued`), or refuses it when the queue is full.
+    /// A place in the queue for an upload about to be read, or 429 when every place is taken
+    /// (by jobs not finished and uploads being received). Take it before reading the upload;
+    /// give it to the job ([`crate::service::retrain::job::submit_reserved`]).
+    pub fn reserve(&self) -> Result<Slot, ApiError> {
+        self.slots
+            .clone()
+            .try_acquire_owned()
+            .map(Slot)
+            .map_err(|_| {
+                ApiError::new(
+                    ErrorKind::Overloaded,
+                    format!(
+                        "{} retraining jobs are queued or running (--max-queued-jobs {}); retry \
+                     later",
+                        self.max_queued.saturating_add(1),
+                        self.max_queued
+                    ),
+                )
+            })
+    }
+
+    /// Registers a new job (state `queued`); its upload holds a [`Slot`].
     pub fn create(
         &self,
         model: &str,
@@ -161,17 +192,6 @@ impl Jobs {
         let mut table = self.table();
         let now = Instant::now();
         table.retain(|_, e| e.finished.is_none_or(|t| now.duration_since(t) < JOB_TTL));
-        let waiting = table.values().filter(|e| e.finished.is_none()).count();
-        if waiting > self.max_queued {
-            return Err(ApiError::new(
-                ErrorKind::Overloaded,
-                format!(
-                    "{waiting} retraining jobs are already queued or running (--max-queued-jobs \
-                     {}); retry when one has finished",
-                    self.max_queued
-                ),
-            ));
-        }
         while table.len() >= MAX_JOBS {
             let oldest = table
                 .iter()
@@ -212,7 +232,7 @@ impl Jobs {
                 finished: None,
             },
         );
-        super::metrics::retrain_jobs_waiting(waiting + 1);
+        super::metrics::retrain_jobs_waiting(queued(&table));
         Ok(job)
     }
 
@@ -241,8 +261,7 @@ impl Jobs {
                 super::metrics::retrain_job_finished(e.job.state.name());
             }
         }
-        let waiting = table.values().filter(|e| e.finished.is_none()).count();
-        super::metrics::retrain_jobs_waiting(waiting);
+        super::metrics::retrain_jobs_waiting(queued(&table));
     }
 
     /// The job is running `stage`, `progress` done.
@@ -278,6 +297,14 @@ impl Jobs {
     }
 }
 
+/// Jobs waiting for the trainer (not the one running).
+fn queued(table: &BTreeMap<String, Entry>) -> usize {
+    table
+        .values()
+        .filter(|e| e.job.state == JobState::Queued)
+        .count()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -285,22 +312,35 @@ mod tests {
     #[test]
     fn the_queue_is_bounded_and_jobs_finish() {
         let jobs = Jobs::new(1);
-        let a = jobs.create("m", "shapes", 10, true, None).unwrap();
-        let b = jobs.create("m", "shapes", 10, true, None).unwrap();
-        let e = jobs.create("m", "shapes", 10, true, None).unwrap_err();
+        // One training and one waiting: two slots, taken before the uploads are read.
+        let sa = jobs.reserve().unwrap();
+        let sb = jobs.reserve().unwrap();
+        let e = jobs.reserve().unwrap_err();
         assert_eq!(e.kind, ErrorKind::Overloaded);
         assert!(e.message.contains("--max-queued-jobs 1"), "{e}");
+        assert!(e.message.contains("retry later"), "{e}");
+        let a = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let b = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert_eq!(queued(&jobs.table()), 2);
         jobs.stage(&a.id, JobStage::Training, 0.5);
         assert_eq!(jobs.get(&a.id).unwrap().state, JobState::Running);
+        // The running job is not waiting.
+        assert_eq!(queued(&jobs.table()), 1);
         jobs.fail(&a.id, "no".into());
+        // The job ends: its slot is free again (an upload refused before it was read frees
+        // its slot the same way).
+        drop(sa);
+        let sc = jobs.reserve().unwrap();
         let c = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert_ne!(b.id, c.id);
         let failed = jobs.get(&a.id).unwrap();
         assert_eq!((failed.state, failed.stage), (JobState::Failed, None));
         assert_eq!(failed.error.as_deref(), Some("no"));
         jobs.succeed(&b.id);
+        drop((sb, sc));
         assert_eq!(jobs.get(&b.id).unwrap().progress, 1.0);
         assert_eq!(jobs.get("nope").unwrap_err().kind, ErrorKind::NotFound);
         assert_eq!(a.id.len(), 32);
+        assert_eq!(queued(&jobs.table()), 1);
     }
 }

@@ -11,7 +11,7 @@
 //! | `facepose_poses_total` | counter | `transport`, `method` (the estimator used) |
 //! | `facepose_estimate_errors_total` | counter | `transport`, `code` (per face) |
 //! | `facepose_streams_active` | gauge | |
-//! | `facepose_model_info` | gauge (1 served, 0 replaced) | `name`, `version`, `checksum`, `default` |
+//! | `facepose_model_info` | gauge (1; one series per model served, removed when replaced) | `name`, `version`, `checksum`, `default` |
 //! | `facepose_model_swaps_total` | counter | `name` |
 //! | `facepose_model_load_failures_total` | counter | `name` (the models folder entry) |
 //! | `facepose_model_sync_problems` | gauge | (models whose active version is not served here) |
@@ -19,6 +19,7 @@
 //! | `facepose_retrain_jobs_waiting` | gauge | |
 //! | `facepose_ready` | gauge | |
 
+use std::collections::BTreeMap;
 use std::time::Duration;
 
 use metrics::{counter, describe_counter, describe_gauge, describe_histogram, gauge, histogram};
@@ -85,10 +86,6 @@ impl Metrics {
             "Faces that could not be estimated, by transport and error code"
         );
         describe_gauge!("facepose_streams_active", "Open EstimateStream streams");
-        describe_gauge!(
-            "facepose_model_info",
-            "Loaded models (value 1), with their version and checksum"
-        );
         describe_gauge!("facepose_ready", "1 when serving, 0 when draining");
         describe_counter!(
             "facepose_model_swaps_total",
@@ -108,14 +105,16 @@ impl Metrics {
         );
         describe_gauge!(
             "facepose_retrain_jobs_waiting",
-            "Retraining jobs queued or running"
+            "Retraining jobs queued (not the one running)"
         );
         Metrics { handle }
     }
 
     /// The Prometheus text exposition.
     pub fn render(&self) -> String {
-        self.handle.render()
+        let mut text = self.handle.render();
+        render_model_info(&mut text);
+        text
     }
 
     /// Drains histogram samples into their buckets every few seconds, so that memory stays
@@ -215,32 +214,78 @@ pub fn ready(on: bool) {
     gauge!("facepose_ready").set(if on { 1.0 } else { 0.0 });
 }
 
+/// The `facepose_model_info` series: one per model served, by name (`version`, `checksum`,
+/// `default`). Kept here rather than in the recorder, which cannot remove a series: a version
+/// that stops being served leaves no series behind.
+static MODEL_INFO: std::sync::Mutex<ModelRows> = std::sync::Mutex::new(BTreeMap::new());
+
+fn model_info() -> std::sync::MutexGuard<'static, ModelRows> {
+    MODEL_INFO.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn model_info_row(m: &ServedModel, default: &str) -> (String, String, bool) {
+    (m.version.clone(), m.checksum.clone(), m.name == default)
+}
+
+/// A label value in the text format.
+fn label(v: &str) -> String {
+    v.replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
+}
+
+type ModelRows = BTreeMap<String, (String, String, bool)>;
+
+fn render_model_info(text: &mut String) {
+    write_model_info(text, &model_info());
+}
+
+fn write_model_info(text: &mut String, rows: &ModelRows) {
+    use std::fmt::Write;
+    if rows.is_empty() {
+        return;
+    }
+    if !text.is_empty() && !text.ends_with("\n\n") {
+        text.push('\n');
+    }
+    text.push_str(
+        "# HELP facepose_model_info Models served (value 1), with their version and checksum\n\
+         # TYPE facepose_model_info gauge\n",
+    );
+    for (name, (version, checksum, default)) in rows.iter() {
+        let _ = writeln!(
+            text,
+            "facepose_model_info{{name=\"{}\",version=\"{}\",checksum=\"{}\",default=\"{default}\"}} 1",
+            label(name),
+            label(version),
+            label(checksum)
+        );
+    }
+}
+
 /// One `facepose_model_info` series per loaded model; the registry gauges at zero.
 pub fn models(set: &ModelSet) {
+    let mut rows = model_info();
+    rows.clear();
     for m in set.iter() {
-        model_info_gauge(m, set.default_name()).set(1.0);
+        rows.insert(m.name.clone(), model_info_row(m, set.default_name()));
     }
+    drop(rows);
     sync_problems(0);
     retrain_jobs_waiting(0);
 }
 
-fn model_info_gauge(m: &ServedModel, default: &str) -> metrics::Gauge {
-    gauge!(
-        "facepose_model_info",
-        "name" => m.name.clone(),
-        "version" => m.version.clone(),
-        "checksum" => m.checksum.clone(),
-        "default" => if m.name == default { "true" } else { "false" }
-    )
+/// A version swapped in: its info series replaces the replaced one's (which is removed).
+pub fn model_swapped(old: Option<&ServedModel>, new: &ServedModel, default: &str) {
+    swap_row(&mut model_info(), old, new, default);
+    counter!("facepose_model_swaps_total", "name" => new.name.clone()).increment(1);
 }
 
-/// A version swapped in: its info series goes to 1, the replaced one's to 0.
-pub fn model_swapped(old: Option<&ServedModel>, new: &ServedModel, default: &str) {
+fn swap_row(rows: &mut ModelRows, old: Option<&ServedModel>, new: &ServedModel, default: &str) {
     if let Some(o) = old {
-        model_info_gauge(o, default).set(0.0);
+        rows.remove(&o.name);
     }
-    model_info_gauge(new, default).set(1.0);
-    counter!("facepose_model_swaps_total", "name" => new.name.clone()).increment(1);
+    rows.insert(new.name.clone(), model_info_row(new, default));
 }
 
 /// An active version of the models folder that failed to load (counted once per problem).
@@ -306,5 +351,36 @@ pub fn grpc_code_label(code: tonic::Code) -> &'static str {
         C::Unavailable => "UNAVAILABLE",
         C::DataLoss => "DATA_LOSS",
         C::Unauthenticated => "UNAUTHENTICATED",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::registry::load_models;
+
+    #[test]
+    fn a_replaced_version_leaves_no_info_series() {
+        let set = load_models(None).unwrap();
+        let old = set.get(None).unwrap();
+        let mut rows = ModelRows::new();
+        swap_row(&mut rows, None, old, "default");
+        let mut new = load_models(None).unwrap().get(None).unwrap().clone();
+        std::sync::Arc::get_mut(&mut new).unwrap().version = "2".into();
+        swap_row(&mut rows, Some(old), &new, "default");
+        let mut text = String::new();
+        write_model_info(&mut text, &rows);
+        let series: Vec<&str> = text
+            .lines()
+            .filter(|l| l.starts_with("facepose_model_info{"))
+            .collect();
+        assert_eq!(series.len(), 1, "{text}");
+        assert!(
+            series[0].starts_with(r#"facepose_model_info{name="default",version="2",checksum=""#),
+            "{text}"
+        );
+        assert!(series[0].ends_with(r#",default="true"} 1"#), "{text}");
+        assert!(text.contains("# TYPE facepose_model_info gauge\n"));
+        assert_eq!(label("a\"b\\c\nd"), r#"a\"b\\c\nd"#);
     }
 }

@@ -4,7 +4,8 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, OnceLock};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::SystemTime;
 
 use super::versions::{self, VersionError};
@@ -36,36 +37,83 @@ pub struct StoredVersions {
 }
 
 /// The models folder as last read (by the watcher or after a change made here).
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Catalog {
     pub models: BTreeMap<String, StoredVersions>,
 }
 
+/// Version metadata by bundle file, with the file's modification time, and how many reads
+/// of the folder began.
+#[derive(Debug, Default)]
+pub(super) struct MetaCache {
+    generation: u64,
+    files: HashMap<PathBuf, (Option<SystemTime>, VersionInfo)>,
+}
+
+/// The state of the catalog's refreshes. A refresh reads the folder with the metadata cache
+/// locked (so reads are serialized and the cache is never lost), and its result is stored only
+/// if no read that began later has been stored already. Requests that arrive while a refresh
+/// is in progress wait for the next one and share it: a read route never queues one read per
+/// request on the blocking pool.
+#[derive(Debug, Default)]
+pub(super) struct Refresh {
+    /// One refresh at a time (from async code).
+    running: tokio::sync::Mutex<()>,
+    /// Tickets of refresh requests, in order.
+    requested: AtomicU64,
+    /// The last ticket covered by a completed refresh (issued before that refresh began).
+    covered: AtomicU64,
+    /// The generation of the catalog stored.
+    stored: Mutex<u64>,
+}
+
 impl Registry {
-    /// Re-reads the folder's versions into the catalog.
+    /// Re-reads the folder's versions into the catalog. Returns once a read that began after
+    /// this call has been stored (or has failed).
     pub async fn refresh_catalog(&self) {
         let Some(dir) = self.dir.clone() else {
             return;
         };
-        let meta = std::mem::take(&mut *lock(&self.meta));
-        let (catalog, meta) = match tokio::task::spawn_blocking(move || {
-            let mut meta = meta;
-            let c = read_catalog(&dir, &mut meta);
-            (c, meta)
+        let r = &self.refresh;
+        let ticket = r.requested.fetch_add(1, Ordering::SeqCst) + 1;
+        let _running = r.running.lock().await;
+        if r.covered.load(Ordering::SeqCst) >= ticket {
+            return;
+        }
+        let covers = r.requested.load(Ordering::SeqCst);
+        let meta = self.meta.clone();
+        let read = tokio::task::spawn_blocking(move || {
+            let mut meta = lock(&meta);
+            meta.generation += 1;
+            let generation = meta.generation;
+            (generation, read_catalog(&dir, &mut meta.files))
         })
-        .await
-        {
+        .await;
+        let (generation, catalog) = match read {
             Ok(x) => x,
             Err(e) => {
                 tracing::error!(error = %e, "reading the models folder panicked");
                 return;
             }
         };
-        *lock(&self.meta) = meta;
+        r.covered.fetch_max(covers, Ordering::SeqCst);
         match catalog {
-            Ok(c) => self.catalog.store(Arc::new(c)),
+            Ok(c) => {
+                self.store_catalog(generation, c);
+            }
             Err(e) => tracing::warn!(error = %e, "cannot read the models folder"),
         }
+    }
+
+    /// Stores the catalog read by read `generation`, unless a later read is stored already.
+    fn store_catalog(&self, generation: u64, catalog: Catalog) -> bool {
+        let mut stored = lock(&self.refresh.stored);
+        if generation <= *stored {
+            return false;
+        }
+        *stored = generation;
+        self.catalog.store(Arc::new(catalog));
+        true
     }
 }
 
@@ -76,7 +124,7 @@ fn read_catalog(
 ) -> Result<Catalog, VersionError> {
     let mut models = BTreeMap::new();
     let mut seen = Vec::new();
-    for m in versions::scan(dir)? {
+    for m in versions::scan(dir, false)? {
         let mut list = Vec::new();
         for v in &m.versions {
             let mtime = std::fs::metadata(&v.file).and_then(|x| x.modified()).ok();
@@ -180,4 +228,52 @@ fn read_info(file: &Path, legacy: bool) -> Result<VersionInfo, String> {
         source: file.display().to_string(),
         fixed: legacy,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::testing::{add, temp_root};
+    use super::super::{load_models, versions};
+    use super::*;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+    async fn concurrent_refreshes_keep_the_cache_and_the_newest_catalog() {
+        let root = temp_root("refresh");
+        for _ in 0..3 {
+            add(&root, "m");
+        }
+        versions::activate(&root, "m", "2", false).unwrap();
+        let reg = Arc::new(Registry::with_dir(
+            load_models(Some(&root)).unwrap(),
+            Some(root.clone()),
+        ));
+        let hs: Vec<_> = (0..16)
+            .map(|_| {
+                let reg = reg.clone();
+                tokio::spawn(async move { reg.refresh_catalog().await })
+            })
+            .collect();
+        for h in hs {
+            h.await.unwrap();
+        }
+        // Every version's metadata is cached: no refresh took the cache from another.
+        assert_eq!(lock(&reg.meta).files.len(), 3);
+        let generation = lock(&reg.meta).generation;
+        assert!(generation <= 16, "{generation}");
+        let c = reg.catalog();
+        assert_eq!(c.models["m"].active.as_deref(), Some("2"));
+        assert_eq!(c.models["m"].versions.len(), 3);
+        // A change made after a refresh was requested is seen by it.
+        versions::activate(&root, "m", "3", false).unwrap();
+        reg.refresh_catalog().await;
+        assert_eq!(reg.catalog().models["m"].active.as_deref(), Some("3"));
+        // An older read never replaces a newer one.
+        let newest = lock(&reg.meta).generation;
+        assert!(!reg.store_catalog(newest - 1, Catalog::default()));
+        assert!(!reg.store_catalog(newest, Catalog::default()));
+        assert_eq!(reg.catalog().models["m"].active.as_deref(), Some("3"));
+        assert!(reg.store_catalog(newest + 1, Catalog::default()));
+        assert_eq!(*reg.catalog(), Catalog::default());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

@@ -19,11 +19,39 @@ impl Registry {
     /// Loads version `version` of model `name`, makes it the folder's active version and
     /// serves it. The version is loaded before the pointer is written: the pointer never names
     /// a version that does not load.
-    pub async fn activate(&self, name: &str, version: &str) -> Result<Arc<ServedModel>, ApiError> {
+    ///
+    /// The whole change (load, pointer, install into the served set) runs in a task of its own
+    /// that holds the change lock: if the caller goes away (timeout, client gone), the
+    /// activation still ends as a whole before another one starts, so an abandoned activation
+    /// never overwrites a later one.
+    pub async fn activate(
+        self: &Arc<Self>,
+        name: &str,
+        version: &str,
+    ) -> Result<Arc<ServedModel>, ApiError> {
         let dir = self.require_dir()?.to_path_buf();
         versions::check_name(name).map_err(version_error)?;
-        let _changes = self.changes.lock().await;
+        let me = self.clone();
         let (n, v) = (name.to_string(), version.to_string());
+        tokio::spawn(async move {
+            let changes = me.changes.clone().lock_owned().await;
+            let served = me.activate_locked(dir, n, v).await;
+            drop(changes);
+            me.refresh_catalog().await;
+            served
+        })
+        .await
+        .map_err(|e| ApiError::internal(format!("activating a version failed: {e}")))?
+    }
+
+    /// The activation under the change lock.
+    async fn activate_locked(
+        &self,
+        dir: PathBuf,
+        n: String,
+        v: String,
+    ) -> Result<Arc<ServedModel>, ApiError> {
+        let set = self.snapshot();
         let served = on_blocking_pool(
             "activating a version",
             move || -> Result<ServedModel, ApiError> {
@@ -44,6 +72,9 @@ impl Registry {
                         ),
                     )
                 })?;
+                if let Some(e) = set.name_conflict(&served.name, &n) {
+                    return Err(e);
+                }
                 versions::activate(&dir, &n, &v, embedded).map_err(version_error)?;
                 Ok(served)
             },
@@ -51,8 +82,6 @@ impl Registry {
         .await?;
         let served = self.install(served);
         tracing::info!(model = %served.name, version = %served.version, source = %served.source, "version activated");
-        drop(_changes);
-        self.refresh_catalog().await;
         Ok(served)
     }
 
@@ -141,6 +170,14 @@ pub fn version_error(e: VersionError) -> ApiError {
             ApiError::new(ErrorKind::Conflict, e.to_string())
         }
         VersionError::Invalid(m) => ApiError::invalid(m),
+        VersionError::Store(StoreError::Exists { ref path }) => ApiError::new(
+            ErrorKind::Conflict,
+            format!(
+                "{} already exists in the models folder (written outside this service?); the \
+                 version was not written: retry, or remove the entry",
+                path.display()
+            ),
+        ),
         VersionError::Io { ref source, .. }
         | VersionError::Store(StoreError::Io { ref source, .. })
             if matches!(
@@ -166,7 +203,70 @@ pub fn version_error(e: VersionError) -> ApiError {
 
 #[cfg(test)]
 mod tests {
+    use super::super::testing::{add, temp_root};
+    use super::super::{load_models, pointer::read_pointer};
     use super::*;
+    use std::time::Duration;
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn an_abandoned_activation_still_ends_as_a_whole() {
+        let root = temp_root("abandoned");
+        assert_eq!(add(&root, "m"), "1");
+        assert_eq!(add(&root, "m"), "2");
+        versions::activate(&root, "m", "1", false).unwrap();
+        let reg = Arc::new(Registry::with_dir(
+            load_models(Some(&root)).unwrap(),
+            Some(root.clone()),
+        ));
+        assert_eq!(reg.snapshot().get(Some("m")).unwrap().version, "1");
+        // The request goes away right after it started the activation.
+        let r = tokio::time::timeout(Duration::ZERO, reg.activate("m", "2")).await;
+        assert!(r.is_err(), "the activation did not wait for anything");
+        // The activation still completes as a whole: pointer written and version served, and
+        // it holds the change lock until then.
+        let mut served = String::new();
+        for _ in 0..1000 {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            let _changes = reg.changes.lock().await;
+            served = reg.snapshot().get(Some("m")).unwrap().version.clone();
+            if served == "2" {
+                assert_eq!(read_pointer(&root.join("m")).unwrap().as_deref(), Some("2"));
+                break;
+            }
+        }
+        assert_eq!(served, "2");
+        // A later activation is not overwritten by the abandoned one.
+        reg.activate("m", "1").await.unwrap();
+        assert_eq!(read_pointer(&root.join("m")).unwrap().as_deref(), Some("1"));
+        assert_eq!(reg.snapshot().get(Some("m")).unwrap().version, "1");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[tokio::test]
+    async fn activating_a_name_served_from_another_folder_is_a_conflict() {
+        let root = temp_root("clash");
+        // The folder "a" serves its legacy bundle, named "shared".
+        std::fs::create_dir_all(root.join("a")).unwrap();
+        std::fs::write(
+            root.join("a").join(crate::model::store::MODEL_FILE),
+            super::super::testing::bundle("shared", "7").to_json(),
+        )
+        .unwrap();
+        assert_eq!(add(&root, "shared"), "1");
+        let reg = Arc::new(Registry::with_dir(
+            load_models(Some(&root)).unwrap(),
+            Some(root.clone()),
+        ));
+        let e = reg.activate("shared", "1").await.unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("already served from the folder \"a\""),
+            "{e}"
+        );
+        assert_eq!(read_pointer(&root.join("shared")).unwrap(), None);
+        assert_eq!(reg.snapshot().by_store("a").unwrap().name, "shared");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 
     #[test]
     fn a_folder_the_server_cannot_write_is_a_conflict_that_says_so() {
@@ -186,5 +286,14 @@ mod tests {
             source: std::io::ErrorKind::StorageFull.into(),
         });
         assert_ne!(e.kind, ErrorKind::Conflict, "{}", e.message);
+        let e = version_error(VersionError::Store(StoreError::Exists {
+            path: "/models/m/versions/2".into(),
+        }));
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("versions/2 already exists"),
+            "{}",
+            e.message
+        );
     }
 }

@@ -27,10 +27,9 @@ pub mod pointer;
 pub mod versions;
 pub mod watch;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
-use std::time::SystemTime;
 
 use arc_swap::ArcSwap;
 
@@ -152,9 +151,16 @@ impl ModelSet {
         })
     }
 
-    /// This set with `model` added, or replacing the model of the same name.
+    /// This set with `model` added, replacing the model of the same name and any other model
+    /// served from the same folder entry (a folder serves one model; the default model's
+    /// entry is kept so that the set always has it).
     pub fn with_model(&self, model: Arc<ServedModel>) -> ModelSet {
         let mut models = self.models.clone();
+        if let Some(store) = model.store.as_deref() {
+            models.retain(|name, m| {
+                *name == self.default || *name == model.name || m.store.as_deref() != Some(store)
+            });
+        }
         models.insert(model.name.clone(), model);
         ModelSet {
             models,
@@ -171,6 +177,24 @@ impl ModelSet {
                 format!(
                     "unknown model {name:?}; loaded models: {}",
                     self.models.keys().cloned().collect::<Vec<_>>().join(", ")
+                ),
+            )
+        })
+    }
+
+    /// Why `name` cannot be served from the folder entry `store`: a model of that name is
+    /// already served from another folder.
+    pub fn name_conflict(&self, name: &str, store: &str) -> Option<ApiError> {
+        let other = self.models.get(name)?;
+        let other_store = other.store.as_deref()?;
+        (other_store != store).then(|| {
+            ApiError::new(
+                ErrorKind::Conflict,
+                format!(
+                    "model {name:?} is already served from the folder {other_store:?} ({}); \
+                     the folder {store:?} cannot serve a model of the same name: rename one of \
+                     them",
+                    other.source
                 ),
             )
         })
@@ -207,17 +231,22 @@ impl ModelSet {
 pub struct Registry {
     current: ArcSwap<ModelSet>,
     dir: Option<PathBuf>,
-    /// Serializes changes of the set made by this process (activations, the watcher).
-    changes: tokio::sync::Mutex<()>,
+    /// Serializes changes of the set made by this process (activations, the watcher). An
+    /// activation holds it in a task of its own, so a request that goes away never releases
+    /// it before the change is done.
+    changes: Arc<tokio::sync::Mutex<()>>,
     catalog: ArcSwap<Catalog>,
     /// What the watcher could not serve, by model folder.
     failures: Mutex<BTreeMap<String, watch::Failure>>,
-    /// Version metadata by bundle file, with the file's modification time.
-    meta: Mutex<HashMap<PathBuf, (Option<SystemTime>, VersionInfo)>>,
+    /// Version metadata by bundle file, with the file's modification time; locked by the
+    /// reader of the folder for the whole read, so refreshes read one after the other.
+    meta: Arc<Mutex<catalog::MetaCache>>,
+    /// Refreshes of the catalog: serialized and coalesced ([`catalog`]).
+    refresh: catalog::Refresh,
 }
 
 impl Registry {
-    /// A registry without a models folder (the set never changes but by [`Registry::replace`]).
+    /// A registry without a models folder (the set never changes).
     pub fn new(set: ModelSet) -> Self {
         Self::with_dir(set, None)
     }
@@ -227,10 +256,11 @@ impl Registry {
         Registry {
             current: ArcSwap::from_pointee(set),
             dir,
-            changes: tokio::sync::Mutex::new(()),
+            changes: Arc::new(tokio::sync::Mutex::new(())),
             catalog: ArcSwap::from_pointee(Catalog::default()),
             failures: Mutex::new(BTreeMap::new()),
-            meta: Mutex::new(HashMap::new()),
+            meta: Arc::new(Mutex::new(catalog::MetaCache::default())),
+            refresh: catalog::Refresh::default(),
         }
     }
 
@@ -240,7 +270,9 @@ impl Registry {
     }
 
     /// Replaces the set atomically and returns the previous one. Requests in progress finish on
-    /// the set they started with.
+    /// the set they started with. (The service changes the set one model at a time, through
+    /// activations and the watcher.)
+    #[cfg(test)]
     pub fn replace(&self, set: ModelSet) -> Arc<ModelSet> {
         self.current.swap(Arc::new(set))
     }
@@ -273,7 +305,12 @@ impl Registry {
         let old = self
             .current
             .rcu(|set| Arc::new(set.with_model(model.clone())));
-        let previous = old.get(Some(&model.name)).ok().cloned();
+        let previous = model
+            .store
+            .as_deref()
+            .and_then(|s| old.by_store(s))
+            .or_else(|| old.get(Some(&model.name)).ok())
+            .cloned();
         super::metrics::model_swapped(previous.as_deref(), &model, old.default_name());
         let mut failures = lock(&self.failures);
         if failures
@@ -403,7 +440,7 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
                     ),
                 });
             }
-            versions::scan(d)?
+            versions::scan(d, true)?
         }
         None => vec![],
     };
@@ -450,6 +487,41 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
     ModelSet::new(models, DEFAULT_MODEL)
 }
 
+/// Models folders for the unit tests of the registry.
+#[cfg(test)]
+pub(crate) mod testing {
+    use std::fs;
+    use std::path::{Path, PathBuf};
+
+    use crate::model::bundle::Bundle;
+
+    /// A fresh empty folder under the temporary directory.
+    pub fn temp_root(tag: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!(
+            "facepose-registry-{tag}-{}",
+            super::versions::unique_suffix()
+        ));
+        fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// The default bundle renamed.
+    pub fn bundle(name: &str, version: &str) -> Bundle {
+        let mut b = Bundle::parse(crate::model::DEFAULT_BUNDLE).unwrap();
+        b.name = name.into();
+        b.version = version.into();
+        b.checksum = b.compute_checksum().unwrap();
+        b
+    }
+
+    /// Writes a new version of `name`; its id.
+    pub fn add(root: &Path, name: &str) -> String {
+        super::versions::write_version(root, name, &[], |v| Ok(bundle(name, v)))
+            .unwrap()
+            .0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -471,6 +543,42 @@ mod tests {
         assert_eq!(err.kind, ErrorKind::NotFound);
         assert!(err.message.contains("loaded models: default"), "{err}");
         assert_eq!(embedded_version(), m.version);
+    }
+
+    fn embedded_as(name: &str, store: &str) -> ServedModel {
+        let mut m = load_resolved(store, &Resolved::Embedded).unwrap();
+        m.name = name.into();
+        m
+    }
+
+    #[test]
+    fn a_folder_serves_one_model_and_names_do_not_clash() {
+        let set = ModelSet::new(
+            vec![
+                embedded_as("default", "default"),
+                embedded_as("legacy-name", "x"),
+            ],
+            "default",
+        )
+        .unwrap();
+        // The folder x now serves a version named after it: the old name goes.
+        let set = set.with_model(Arc::new(embedded_as("x", "x")));
+        assert_eq!(
+            set.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(),
+            ["default", "x"]
+        );
+        assert_eq!(set.by_store("x").unwrap().name, "x");
+        // The default model's entry stays even if its folder serves another name.
+        let set = set.with_model(Arc::new(embedded_as("other", "default")));
+        assert!(set.get(None).is_ok());
+        let e = set.name_conflict("x", "y").unwrap();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(
+            e.message.contains("already served from the folder \"x\""),
+            "{e}"
+        );
+        assert!(set.name_conflict("x", "x").is_none());
+        assert!(set.name_conflict("new", "y").is_none());
     }
 
     #[test]

@@ -31,11 +31,11 @@
 
 use std::fs::{self, File, OpenOptions};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use super::pointer::{next_id, numeric, read_pointer, write_pointer};
 use crate::model::bundle::Bundle;
-use crate::model::store::{MODEL_FILE, StoreError, write_bundle_dir};
+use crate::model::store::{self, MODEL_FILE, StoreError, write_bundle_dir};
 
 /// The folder of numbered versions.
 pub const VERSIONS_DIR: &str = "versions";
@@ -155,30 +155,67 @@ pub fn check_name(name: &str) -> Result<(), VersionError> {
     }
 }
 
-/// Every model folder of `root` (hidden ones skipped), by name. Fails if any cannot be read.
-pub fn scan(root: &Path) -> Result<Vec<StoredModel>, VersionError> {
+/// Every model folder of `root` (hidden ones skipped), by name. Entries that are not model
+/// folders (see [`model_entries`]) and folders that cannot be read (e.g. a root-owned
+/// `lost+found` on a volume) are skipped, with a warning when `warn` is set; other problems
+/// (a pointer that names no valid id, a legacy bundle without a version) fail.
+pub fn scan(root: &Path, warn: bool) -> Result<Vec<StoredModel>, VersionError> {
+    let (names, skipped) = model_entries(root)?;
+    if warn {
+        for n in &skipped {
+            tracing::warn!(entry = %root.join(n).display(),
+                "not a model folder (not a valid model name, no model.json): ignored");
+        }
+    }
     let mut out = Vec::new();
-    for (_, m) in scan_each(root)? {
-        out.extend(m?);
+    for n in names {
+        match scan_model(root, &n) {
+            Ok(m) => out.extend(m),
+            Err(e @ VersionError::Io { .. }) => {
+                if warn {
+                    tracing::warn!(entry = %root.join(&n).display(), error = %e,
+                        "cannot read this entry of the models folder: ignored");
+                } else {
+                    tracing::debug!(entry = %root.join(&n).display(), error = %e,
+                        "cannot read this entry of the models folder: ignored");
+                }
+            }
+            Err(e) => return Err(e),
+        }
     }
     Ok(out)
 }
 
-/// Every model folder of `root` (hidden ones skipped), by name, each with its own outcome: one
-/// unreadable folder does not hide the others.
-#[allow(clippy::type_complexity)]
-pub fn scan_each(
-    root: &Path,
-) -> Result<Vec<(String, Result<Option<StoredModel>, VersionError>)>, VersionError> {
+/// The entries of `root` that may be model folders, sorted, and those skipped: hidden
+/// entries and files are not listed at all; folders whose name is not a valid model name
+/// ([`check_name`]) and that hold no `model.json` are skipped (`lost+found`, ...).
+pub fn model_entries(root: &Path) -> Result<(Vec<String>, Vec<String>), VersionError> {
     let mut names = Vec::new();
+    let mut skipped = Vec::new();
     for entry in fs::read_dir(root).map_err(io(root))? {
         let entry = entry.map_err(io(root))?;
         let name = entry.file_name().to_string_lossy().into_owned();
-        if !name.starts_with('.') && entry.path().is_dir() {
+        if name.starts_with('.') || !entry.path().is_dir() {
+            continue;
+        }
+        if check_name(&name).is_err() && !entry.path().join(MODEL_FILE).is_file() {
+            skipped.push(name);
+        } else {
             names.push(name);
         }
     }
     names.sort();
+    skipped.sort();
+    Ok((names, skipped))
+}
+
+/// Every model folder of `root` (as [`model_entries`] lists them), by name, each with its own
+/// outcome: one unreadable folder does not hide the others.
+#[allow(clippy::type_complexity)]
+pub fn scan_each(
+    root: &Path,
+) -> Result<Vec<(String, Result<Option<StoredModel>, VersionError>)>, VersionError> {
+    let (names, _) = model_entries(root)?;
     Ok(names
         .into_iter()
         .map(|n| {
@@ -285,16 +322,10 @@ impl Drop for Lock {
     }
 }
 
-pub(super) fn unique_suffix() -> String {
-    let nanos = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    format!("{}-{nanos}", std::process::id())
-}
+pub(super) use crate::model::store::unique_suffix;
 
 pub(super) fn sync_dir(dir: &Path) -> Result<(), VersionError> {
-    File::open(dir).and_then(|d| d.sync_all()).map_err(io(dir))
+    store::sync_dir(dir).map_err(io(dir))
 }
 
 /// Writes a new version of model `name` under `root` and returns its id and bundle file. The
@@ -321,6 +352,10 @@ pub fn write_version(
         let f = entry.file_name().to_string_lossy().into_owned();
         if let Some(id) = f.strip_prefix('.').and_then(|s| s.strip_suffix(".deleted")) {
             used.push(id.to_string());
+        } else if numeric(&f).is_some() {
+            // Every numbered entry counts, also one without a bundle (copied in by hand,
+            // damaged): its name is taken.
+            used.push(f);
         }
     }
     let version = next_id(used.iter().map(String::as_str));
@@ -574,6 +609,58 @@ mod tests {
         assert!(!vdir.join(".2.tmp-1-1").exists());
         // The next write after the crash takes id 2 (the torn one never had it).
         assert_eq!(add(&root, "m"), "2");
+        fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn entries_that_are_not_model_folders_do_not_stop_a_scan() {
+        use std::os::unix::fs::PermissionsExt;
+        let root = temp_root("foreign");
+        assert_eq!(add(&root, "m"), "1");
+        // A volume's lost+found, unreadable by the service's user (when it is not root).
+        let lf = root.join("lost+found");
+        fs::create_dir_all(lf.join("#1234")).unwrap();
+        fs::set_permissions(&lf, fs::Permissions::from_mode(0o000)).unwrap();
+        // A folder with an invalid name whose pointer would not parse.
+        let bad = root.join("Not A Model");
+        fs::create_dir_all(&bad).unwrap();
+        fs::write(bad.join("ACTIVE"), "garbage garbage").unwrap();
+        let (names, skipped) = model_entries(&root).unwrap();
+        assert_eq!(names, ["m"]);
+        assert_eq!(skipped, ["Not A Model", "lost+found"]);
+        let all = scan(&root, true).unwrap();
+        assert_eq!(
+            all.iter().map(|m| m.name.as_str()).collect::<Vec<_>>(),
+            ["m"]
+        );
+        assert_eq!(scan_each(&root).unwrap().len(), 1);
+        // The models load.
+        let set = crate::service::registry::load_models(Some(&root)).unwrap();
+        assert!(set.get(None).is_ok());
+        // A valid name that cannot be read is skipped too (only without root's rights).
+        let locked = root.join("locked");
+        fs::create_dir_all(locked.join(VERSIONS_DIR)).unwrap();
+        fs::set_permissions(&locked, fs::Permissions::from_mode(0o000)).unwrap();
+        let readable = fs::read_dir(&locked).is_ok();
+        let all = scan(&root, true).unwrap();
+        if !readable {
+            assert_eq!(all.len(), 1);
+        }
+        for d in [&lf, &locked] {
+            fs::set_permissions(d, fs::Permissions::from_mode(0o755)).unwrap();
+        }
+        fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn a_numbered_entry_without_a_bundle_takes_its_id() {
+        let root = temp_root("nobundle");
+        assert_eq!(add(&root, "m"), "1");
+        let vdir = root.join("m").join(VERSIONS_DIR);
+        fs::create_dir_all(vdir.join("2")).unwrap();
+        fs::write(vdir.join("5"), "not a folder").unwrap();
+        assert_eq!(add(&root, "m"), "6");
+        assert_eq!(scan_model(&root, "m").unwrap().unwrap().ids(), ["1", "6"]);
         fs::remove_dir_all(&root).unwrap();
     }
 

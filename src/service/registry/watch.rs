@@ -45,6 +45,8 @@ enum Outcome {
     /// The newly active version, loaded.
     Loaded(Box<ServedModel>),
     Failed(SyncProblem),
+    /// A folder whose problem is left alone until its retry time: the problem stands.
+    Waiting(String),
 }
 
 impl Registry {
@@ -81,8 +83,12 @@ impl Registry {
                 return;
             }
         };
+        // Problems not reported again in this pass are gone (the folder was fixed or
+        // removed, the folder list can be read again).
+        let mut reported: Vec<String> = Vec::new();
         for outcome in outcomes {
             match outcome {
+                Outcome::Waiting(store) => reported.push(store),
                 Outcome::Current(store) => {
                     let mut failures = lock(&self.failures);
                     if failures.remove(&store).is_some() {
@@ -94,7 +100,19 @@ impl Registry {
                     tracing::info!(model = %m.name, version = %m.version, source = %m.source,
                         "serving the version now active in the models folder");
                 }
-                Outcome::Failed(problem) => self.record_failure(problem),
+                Outcome::Failed(problem) => {
+                    reported.push(problem.model.clone());
+                    self.record_failure(problem);
+                }
+            }
+        }
+        // When the folder list could not be read, nothing is known of the others.
+        if !reported.iter().any(|m| m == "*") {
+            let mut failures = lock(&self.failures);
+            let before = failures.len();
+            failures.retain(|model, _| reported.contains(model));
+            if failures.len() != before {
+                metrics::sync_problems(failures.len());
             }
         }
         drop(changes);
@@ -172,6 +190,9 @@ fn sync_pass(
         match scanned {
             Ok(Some(m)) => out.extend(follow(&m, current, skip)),
             Ok(None) => {}
+            Err(_) if skip.iter().any(|(n, v)| *n == name && v.is_empty()) => {
+                out.push(Outcome::Waiting(name));
+            }
             Err(e) => out.push(Outcome::Failed(SyncProblem {
                 model: name,
                 version: String::new(),
@@ -190,7 +211,7 @@ fn follow(m: &StoredModel, current: &ModelSet, skip: &[(String, String)]) -> Opt
         return Some(Outcome::Current(m.name.clone()));
     }
     if skip.iter().any(|(n, v)| *n == m.name && v == active) {
-        return None;
+        return Some(Outcome::Waiting(m.name.clone()));
     }
     let failed = |message: String| {
         Outcome::Failed(SyncProblem {
@@ -223,4 +244,44 @@ fn follow(m: &StoredModel, current: &ModelSet, skip: &[(String, String)]) -> Opt
         Ok(s) => Outcome::Loaded(Box::new(s)),
         Err(e) => failed(e.to_string()),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::load_models;
+    use super::super::testing::{add, temp_root};
+    use super::*;
+
+    #[tokio::test]
+    async fn problems_that_are_not_reported_again_are_cleared() {
+        let root = temp_root("problems");
+        assert_eq!(add(&root, "m"), "1");
+        let reg = Registry::with_dir(load_models(Some(&root)).unwrap(), Some(root.clone()));
+        // A problem of the folder list, from an earlier pass.
+        reg.record_failure(SyncProblem {
+            model: "*".into(),
+            version: String::new(),
+            message: "cannot list the models folder".into(),
+        });
+        // A folder whose pointer names a version that is not there.
+        let g = root.join("g");
+        std::fs::create_dir_all(&g).unwrap();
+        std::fs::write(g.join(super::super::pointer::ACTIVE_FILE), "5\n").unwrap();
+        reg.sync(false).await;
+        let models = |reg: &Registry| {
+            reg.problems()
+                .into_iter()
+                .map(|p| p.model)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(models(&reg), ["g"]);
+        // Still broken, waiting for its retry: the problem stands.
+        reg.sync(false).await;
+        assert_eq!(models(&reg), ["g"]);
+        // The folder disappears: so does its problem.
+        std::fs::remove_dir_all(&g).unwrap();
+        reg.sync(false).await;
+        assert!(reg.problems().is_empty(), "{:?}", reg.problems());
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

@@ -15,13 +15,28 @@ use crate::model::validate::{
 use crate::model::{BasisSource, train_from_population};
 use crate::service::AppState;
 use crate::service::errors::ApiError;
-use crate::service::jobs::{Job, JobStage, now_rfc3339};
+use crate::service::jobs::{Job, JobStage, Slot, now_rfc3339};
 use crate::service::pose::on_blocking_pool;
 use crate::shape::Shape2;
 
-/// Registers an accepted upload as a job (429 when the queue is full) and starts it.
+/// Registers an accepted upload as a job (429 when the queue is full) and starts it. Prefer
+/// [`submit_reserved`] with a slot taken before the upload was read.
 pub fn submit(state: &Arc<AppState>, p: Prepared) -> Result<Job, ApiError> {
+    let slot = state.jobs.reserve()?;
+    submit_reserved(state, p, slot)
+}
+
+/// Registers an accepted upload as a job and starts it; the job holds `slot` (taken with
+/// [`crate::service::jobs::Jobs::reserve`] before the upload was read) until it ends.
+pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result<Job, ApiError> {
     let spec = p.spec;
+    if let Some(e) = state
+        .registry
+        .snapshot()
+        .name_conflict(&spec.model, &spec.model)
+    {
+        return Err(e);
+    }
     let job = state.jobs.create(
         &spec.model,
         spec.kind,
@@ -36,7 +51,14 @@ pub fn submit(state: &Arc<AppState>, p: Prepared) -> Result<Job, ApiError> {
         "retraining job accepted");
     // The job outlives the request: its own span, not a child of the request's.
     let span = tracing::info_span!(parent: None, "job", id = %job.id, model = %spec.model);
-    tokio::spawn(run(state.clone(), job.id.clone(), Arc::new(spec), p.work).instrument(span));
+    let (state, id) = (state.clone(), job.id.clone());
+    tokio::spawn(
+        async move {
+            run(state, id, Arc::new(spec), p.work).await;
+            drop(slot);
+        }
+        .instrument(span),
+    );
     Ok(job)
 }
 

@@ -28,6 +28,10 @@ pub use options::{RawGrid, RawOptions, UploadOptions, check_options};
 /// The longest `notes` recorded in a version's provenance, bytes.
 pub const MAX_NOTES: usize = 4096;
 
+/// The most points of an uploaded scheme definition (training time grows with the square of
+/// the points; the largest built-in scheme has 68).
+pub const MAX_SCHEME_POINTS: usize = 1000;
+
 /// The scheme of an upload: a built-in name or a definition.
 #[derive(Debug, Clone)]
 pub enum SchemeSpec {
@@ -126,6 +130,12 @@ fn resolve_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ApiError> {
             ))
         }),
         Some(SchemeSpec::Definition(s)) => {
+            if s.len() > MAX_SCHEME_POINTS {
+                return Err(ApiError::invalid(format!(
+                    "scheme: {} points; the limit is {MAX_SCHEME_POINTS}",
+                    s.len()
+                )));
+            }
             s.validate()
                 .map_err(|e| ApiError::invalid(format!("scheme: {e}")))?;
             Ok(*s)
@@ -240,4 +250,20 @@ pub fn prepare(raw: RawUpload) -> Result<Prepared, ApiError> {
         },
         work,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_uploaded_scheme_has_at_most_1000_points() {
+        let mut s = crate::shape::ibug68();
+        s.name = "huge".into();
+        s.points = (0..=MAX_SCHEME_POINTS).map(|k| format!("p{k}")).collect();
+        let e = resolve_scheme(Some(SchemeSpec::Definition(Box::new(s)))).unwrap_err();
+        assert_eq!(e.kind, crate::service::errors::ErrorKind::InvalidArgument);
+        assert_eq!(e.message, "scheme: 1001 points; the limit is 1000");
+        assert!(resolve_scheme(Some(SchemeSpec::Name("five".into()))).is_ok());
+    }
 }

@@ -17,6 +17,10 @@ pub const DEFAULT_COMPONENTS: usize = 40;
 /// has 5,421.
 pub const MAX_GRID_VIEWS: usize = 50_000;
 
+/// The most fine bins a custom grid may have (the wide grid has 5): each bin is a regression
+/// trained and kept in the bundle, whatever its size.
+pub const MAX_BINS: usize = 64;
+
 /// A pose grid as sent: `[min, max, step]` per angle; roll `None` is 0 only.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RawGrid {
@@ -83,6 +87,14 @@ fn views(g: &PoseGrid) -> f64 {
 
 /// Checks the options against the scheme and fills in the defaults.
 pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions, ApiError> {
+    if let Some((_, bins)) = &raw.custom_grid
+        && bins.len() > MAX_BINS
+    {
+        return Err(ApiError::invalid(format!(
+            "options.grid bins: {} bins; the limit is {MAX_BINS}",
+            bins.len()
+        )));
+    }
     let mut regression = match (&raw.custom_grid, raw.grid.as_deref()) {
         (Some((coarse, bins)), _) => RegressionParams {
             coarse: grid("coarse", coarse)?,
@@ -266,6 +278,27 @@ mod tests {
                     ..Default::default()
                 },
                 "options.subsets",
+            ),
+            (
+                RawOptions {
+                    custom_grid: Some((
+                        RawGrid {
+                            yaw: [0.0, 0.0, 1.0],
+                            pitch: [0.0, 0.0, 1.0],
+                            roll: None,
+                        },
+                        vec![
+                            RawGrid {
+                                yaw: [0.0, 0.0, 1.0],
+                                pitch: [0.0, 0.0, 1.0],
+                                roll: None,
+                            };
+                            MAX_BINS + 1
+                        ],
+                    )),
+                    ..Default::default()
+                },
+                "options.grid bins: 65 bins; the limit is 64",
             ),
             (
                 RawOptions {
