@@ -411,6 +411,8 @@ impl PoseService for PoseApi {
             authorize(&state, &request)?;
             state.registry.require_dir()?;
             let _permit = self.permit()?;
+            // A queue slot before the upload is read: queued uploads bound the memory.
+            let slot = state.jobs.reserve()?;
             let limits = state.limits;
             let mut inbound = request.into_inner();
             let mut chunks = ChunkCollector::new(limits.max_upload);
@@ -435,7 +437,7 @@ impl PoseService for PoseApi {
             let raw = chunks.finish()?;
             let prepared =
                 on_blocking_pool("checking the upload", move || retrain::prepare(raw)).await?;
-            let job = retrain::job::submit(&state, prepared)?;
+            let job = retrain::job::submit_reserved(&state, prepared, slot)?;
             Ok(job_message(&job))
         }
         .await;

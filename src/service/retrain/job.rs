@@ -19,13 +19,6 @@ use crate::service::jobs::{Job, JobStage, Slot, now_rfc3339};
 use crate::service::pose::on_blocking_pool;
 use crate::shape::Shape2;
 
-/// Registers an accepted upload as a job (429 when the queue is full) and starts it. Prefer
-/// [`submit_reserved`] with a slot taken before the upload was read.
-pub fn submit(state: &Arc<AppState>, p: Prepared) -> Result<Job, ApiError> {
-    let slot = state.jobs.reserve()?;
-    submit_reserved(state, p, slot)
-}
-
 /// Registers an accepted upload as a job and starts it; the job holds `slot` (taken with
 /// [`crate::service::jobs::Jobs::reserve`] before the upload was read) until it ends.
 pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result<Job, ApiError> {
