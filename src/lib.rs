@@ -18,3 +18,27 @@ pub mod shape;
 pub mod synth;
 
 pub use error::{Error, Result};
+
+/// Small synthetic faces for the unit tests of several modules.
+#[cfg(test)]
+pub(crate) mod test_faces {
+    use nalgebra::Vector3;
+
+    /// The first `n` (at most 10) points of a small non-planar face, model frame, mm: eye
+    /// centres, nose tip, mouth corners, ears, chin, forehead, brow.
+    pub fn face(n: usize) -> Vec<Vector3<f64>> {
+        let all = [
+            Vector3::new(-32.0, 35.0, 0.0),
+            Vector3::new(32.0, 35.0, 0.0),
+            Vector3::new(0.0, 0.0, 40.0),
+            Vector3::new(-25.0, -30.0, 8.0),
+            Vector3::new(25.0, -30.0, 8.0),
+            Vector3::new(-60.0, 10.0, -60.0),
+            Vector3::new(60.0, 10.0, -60.0),
+            Vector3::new(0.0, -70.0, 10.0),
+            Vector3::new(0.0, 40.0, 20.0),
+            Vector3::new(-15.0, 50.0, 10.0),
+        ];
+        all[..n].to_vec()
+    }
+}

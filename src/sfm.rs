@@ -431,17 +431,7 @@ mod tests {
 
     /// A small non-planar face-like cloud (nose tip at 2).
     fn face() -> Vec<Vector3<f64>> {
-        vec![
-            Vector3::new(-32.0, 35.0, 0.0),
-            Vector3::new(32.0, 35.0, 0.0),
-            Vector3::new(0.0, 0.0, 40.0),
-            Vector3::new(-25.0, -30.0, 8.0),
-            Vector3::new(25.0, -30.0, 8.0),
-            Vector3::new(-60.0, 10.0, -60.0),
-            Vector3::new(60.0, 10.0, -60.0),
-            Vector3::new(0.0, -70.0, 10.0),
-            Vector3::new(0.0, 40.0, 20.0),
-        ]
+        crate::test_faces::face(9)
     }
 
     fn views(shape: &[Vector3<f64>], yaws: &[f64], rng: &mut StdRng) -> Vec<Shape2> {

@@ -146,6 +146,17 @@ async fn get(c: &reqwest::Client, server: &Server, path: &str) -> (StatusCode, V
     json_of(c.get(server.url(path)).send().await.unwrap()).await
 }
 
+/// The server's Prometheus text.
+async fn metrics_text(c: &reqwest::Client, server: &Server) -> String {
+    c.get(server.url("/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap()
+}
+
 /// Polls a job until it ends (deadline 60 s).
 async fn wait_job(c: &reqwest::Client, server: &Server, id: &str) -> Value {
     let t = Instant::now();
@@ -434,14 +445,7 @@ async fn swaps_under_load_fail_no_request() {
     );
     assert_eq!(seen.keys().collect::<Vec<_>>(), ["1", "2", "3"], "{seen:?}");
     assert!(stream_versions.len() >= 2, "{stream_versions:?}");
-    let metrics = c
-        .get(server.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = metrics_text(&c, &server).await;
     assert!(
         metrics.contains("facepose_model_swaps_total{name=\"default\"} 9"),
         "{}",
@@ -576,15 +580,7 @@ fn raw_exchange(
     let mut text = Vec::new();
     let _ = s.read_to_end(&mut text);
     let _ = writer.join();
-    let text = String::from_utf8_lossy(&text).into_owned();
-    let status = text
-        .split_whitespace()
-        .nth(1)
-        .unwrap_or("0")
-        .parse()
-        .unwrap_or(0);
-    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
-    (status, body)
+    parse_answer(&String::from_utf8_lossy(&text))
 }
 
 /// An error answer's code and message, checked against what is expected.
@@ -1298,14 +1294,7 @@ async fn replicas_sharing_a_folder_converge() {
             "{v}"
         );
         assert_eq!(served_version(&c, server).await, "2");
-        let metrics = c
-            .get(server.url("/metrics"))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
+        let metrics = metrics_text(&c, server).await;
         assert!(
             metrics.contains("facepose_model_sync_problems 1"),
             "{metrics}"

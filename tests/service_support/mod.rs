@@ -181,9 +181,19 @@ pub fn raw_get(addr: SocketAddr, path: &str) -> Option<(u16, String)> {
     .ok()?;
     let mut text = String::new();
     s.read_to_string(&mut text).ok()?;
-    let status = text.split_whitespace().nth(1)?.parse().ok()?;
+    let (status, body) = parse_answer(&text);
+    (status != 0).then_some((status, body))
+}
+
+/// The status and body of an HTTP/1.1 answer read whole (status 0 when there is none).
+pub fn parse_answer(text: &str) -> (u16, String) {
+    let status = text
+        .split_whitespace()
+        .nth(1)
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(0);
     let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
-    Some((status, body))
+    (status, body)
 }
 
 /// A bare HTTP/1.1 POST with the given content type and body bytes: (status, body).
@@ -199,9 +209,7 @@ pub fn raw_post(addr: SocketAddr, path: &str, content_type: &str, body: &[u8]) -
     s.write_all(body).unwrap();
     let mut text = String::new();
     s.read_to_string(&mut text).unwrap();
-    let status = text.split_whitespace().nth(1).unwrap().parse().unwrap();
-    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
-    (status, body)
+    parse_answer(&text)
 }
 
 /// The head of an HTTP/1.1 JSON POST declaring `length` body bytes (plus `extra` header lines),
@@ -216,14 +224,7 @@ pub fn raw_head_only_post(addr: SocketAddr, path: &str, length: u64, extra: &str
     .unwrap();
     let mut text = String::new();
     let _ = s.read_to_string(&mut text);
-    let status = text
-        .split_whitespace()
-        .nth(1)
-        .unwrap_or("0")
-        .parse()
-        .unwrap_or(0);
-    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
-    (status, body)
+    parse_answer(&text)
 }
 
 /// A chunked HTTP/1.1 POST of JSON whose length is not declared: (status, body).
@@ -245,14 +246,7 @@ pub fn raw_chunked_post(addr: SocketAddr, path: &str, chunks: &[&[u8]]) -> (u16,
     let _ = s.write_all(b"0\r\n\r\n");
     let mut text = String::new();
     let _ = s.read_to_string(&mut text);
-    let status = text
-        .split_whitespace()
-        .nth(1)
-        .unwrap_or("0")
-        .parse()
-        .unwrap_or(0);
-    let body = text.split("\r\n\r\n").nth(1).unwrap_or("").to_string();
-    (status, body)
+    parse_answer(&text)
 }
 
 /// The default model, loaded once per test process.

@@ -616,18 +616,7 @@ mod tests {
     use nalgebra::Vector3;
 
     fn face() -> Vec<Vector3<f64>> {
-        vec![
-            Vector3::new(-32.0, 35.0, 0.0),
-            Vector3::new(32.0, 35.0, 0.0),
-            Vector3::new(0.0, 0.0, 40.0),
-            Vector3::new(-25.0, -30.0, 8.0),
-            Vector3::new(25.0, -30.0, 8.0),
-            Vector3::new(-60.0, 10.0, -60.0),
-            Vector3::new(60.0, 10.0, -60.0),
-            Vector3::new(0.0, -70.0, 10.0),
-            Vector3::new(0.0, 40.0, 20.0),
-            Vector3::new(-15.0, 50.0, 10.0),
-        ]
+        crate::test_faces::face(10)
     }
 
     fn bin(grid: PoseGrid) -> ViewBin {
