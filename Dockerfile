@@ -9,13 +9,17 @@
 # (deploy/kubernetes/); without one, retrained versions live as long as the container.
 
 FROM rust:1.95-slim-bookworm AS build
+# make builds jemalloc, the binary's allocator.
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends make=4.3-4.1 \
+ && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 # Dependencies first, so that source edits do not rebuild them.
 COPY Cargo.toml Cargo.lock build.rs ./
 COPY proto ./proto
 RUN mkdir -p src benches examples \
  && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
- && for b in hpr estimate service; do echo 'fn main() {}' > benches/$b.rs; done \
+ && for b in hpr estimate service train; do echo 'fn main() {}' > benches/$b.rs; done \
  && echo 'fn main() {}' > examples/loadgen.rs \
  && cargo build --release --locked --bin facepose || true
 COPY src ./src

@@ -87,7 +87,6 @@ pub enum ServeError {
 /// Validates the flags, starts logging and the runtime, and serves until SIGTERM/SIGINT.
 pub fn run(args: ServeArgs) -> Result<(), ServeError> {
     let started = Instant::now();
-    tune_allocator();
     let cfg = args.validate()?;
     init_logging(&cfg);
     let runtime = tokio::runtime::Builder::new_multi_thread()
@@ -103,20 +102,6 @@ pub fn run(args: ServeArgs) -> Result<(), ServeError> {
     // Blocking batch tasks cut off by the drain cap are not waited for.
     runtime.shutdown_timeout(std::time::Duration::from_millis(100));
     result
-}
-
-/// glibc's allocator keeps freed memory per thread arena and raises its mmap threshold to the
-/// largest block freed, so after a few megabyte-sized batch bodies the resident size stays at
-/// its peak. A fixed threshold returns large blocks to the system when freed, and two arenas
-/// bound the per-thread caches.
-fn tune_allocator() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets allocator parameters; it is called before the runtime starts
-    // any thread, as glibc recommends.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 256 * 1024);
-        libc::mallopt(libc::M_ARENA_MAX, 2);
-    }
 }
 
 fn init_logging(cfg: &Config) {
