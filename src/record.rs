@@ -84,12 +84,23 @@ impl<'de> Deserialize<'de> for Landmarks {
 /// landmark by index ("landmark 3 y ...") and say what is expected. Never panics, whatever the
 /// text.
 pub fn parse_landmarks(text: &str) -> std::result::Result<Landmarks, String> {
-    let mut c = Cursor {
-        text,
-        b: text.as_bytes(),
-        i: 0,
-    };
-    c.ws();
+    let b = text.as_bytes();
+    let (points, end) = parse_landmarks_at(b, skip_ws(b, 0))?;
+    if skip_ws(b, end) != b.len() {
+        return Err("unexpected text after the landmark array".into());
+    }
+    Ok(points)
+}
+
+/// Parses the landmark list that starts at byte `start` of `b` (no leading whitespace) in one
+/// pass, numbers where they are found, and returns it with the offset just past its `]`. Strict
+/// JSON: what it accepts is valid JSON text, so a caller may take it as such without another
+/// scan; errors as [`parse_landmarks`].
+pub fn parse_landmarks_at(
+    b: &[u8],
+    start: usize,
+) -> std::result::Result<(Landmarks, usize), String> {
+    let mut c = Cursor { b, i: start };
     if c.peek() != Some(b'[') {
         return Err(format!(
             "expected an array of landmarks, each [x, y] (pixels) or null, found {}",
@@ -97,54 +108,52 @@ pub fn parse_landmarks(text: &str) -> std::result::Result<Landmarks, String> {
         ));
     }
     c.i += 1;
-    // About 14 bytes a point at the least ("[1.5, 20.25],"); trimmed at the end.
-    let mut points = Vec::with_capacity(text.len() / 14 + 1);
+    // About 14 bytes a point at the least ("[1.5, 20.25],"), 68 points for most requests.
+    let mut points = Vec::with_capacity(68);
     c.ws();
     if c.peek() == Some(b']') {
-        c.i += 1;
-    } else {
-        loop {
-            let k = points.len();
-            c.ws();
-            points.push(c.point(k)?);
-            c.ws();
-            match c.peek() {
-                Some(b',') => c.i += 1,
-                Some(b']') => {
-                    c.i += 1;
-                    break;
-                }
-                _ => return Err(format!("after landmark {k}: expected , or ]")),
+        return Ok((Landmarks(points), c.i + 1));
+    }
+    loop {
+        let k = points.len();
+        points.push(c.point(k)?);
+        c.ws();
+        match c.peek() {
+            Some(b',') => {
+                c.i += 1;
+                c.ws();
             }
+            Some(b']') => break,
+            _ => return Err(format!("after landmark {k}: expected , or ]")),
         }
     }
-    c.ws();
-    if c.i != c.b.len() {
-        return Err("unexpected text after the landmark array".into());
-    }
     points.shrink_to_fit();
-    Ok(Landmarks(points))
+    Ok((Landmarks(points), c.i + 1))
+}
+
+/// The offset of the first byte at or after `i` that is not JSON whitespace.
+#[inline]
+pub(crate) fn skip_ws(b: &[u8], mut i: usize) -> usize {
+    while let Some(b' ' | b'\n' | b'\r' | b'\t') = b.get(i) {
+        i += 1;
+    }
+    i
 }
 
 struct Cursor<'a> {
-    text: &'a str,
     b: &'a [u8],
     i: usize,
 }
 
 impl Cursor<'_> {
+    #[inline]
     fn peek(&self) -> Option<u8> {
         self.b.get(self.i).copied()
     }
 
+    #[inline]
     fn ws(&mut self) {
-        while self.peek().is_some_and(|c| c.is_ascii_whitespace()) {
-            self.i += 1;
-        }
-    }
-
-    fn rest_starts_with(&self, s: &[u8]) -> bool {
-        self.b.get(self.i..).is_some_and(|r| r.starts_with(s))
+        self.i = skip_ws(self.b, self.i);
     }
 
     /// What the next value is, for messages.
@@ -163,15 +172,18 @@ impl Cursor<'_> {
 
     /// Landmark `k`: `[x, y]` or `null`.
     fn point(&mut self, k: usize) -> std::result::Result<Option<[f64; 2]>, String> {
-        if self.rest_starts_with(b"null") {
-            self.i += 4;
-            return Ok(None);
-        }
-        if self.peek() != Some(b'[') {
-            return Err(format!(
-                "landmark {k} must be [x, y] numbers or null, found {}",
-                self.kind()
-            ));
+        match self.peek() {
+            Some(b'[') => {}
+            Some(b'n') if self.b.get(self.i..self.i + 4) == Some(b"null") => {
+                self.i += 4;
+                return Ok(None);
+            }
+            _ => {
+                return Err(format!(
+                    "landmark {k} must be [x, y] numbers or null, found {}",
+                    self.kind()
+                ));
+            }
         }
         self.i += 1;
         self.ws();
@@ -201,45 +213,66 @@ impl Cursor<'_> {
         }
     }
 
-    /// Coordinate `c` of landmark `k`: a JSON number.
+    /// Coordinate `c` of landmark `k`: a JSON number
+    /// (`-?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?`), correctly rounded. fast-float2 (the
+    /// algorithm of std's parser) reads it where it is, in one pass; its grammar is JSON's with
+    /// a few extensions (a leading `+` or `.`, `inf`, `nan`, leading zeros, `1.`, `1.e5`), which
+    /// the checks around it refuse.
     fn number(&mut self, k: usize, c: &str) -> std::result::Result<f64, String> {
-        match self.peek() {
-            Some(b'-' | b'0'..=b'9') => {}
+        let (b, start) = (self.b, self.i);
+        let first = start + usize::from(b.get(start) == Some(&b'-'));
+        if !b.get(first).is_some_and(u8::is_ascii_digit) {
+            return Err(self.not_a_number(k, c));
+        }
+        let Ok((v, len)) = fast_float2::parse_partial::<f64, _>(&b[start..]) else {
+            return Err(self.not_a_number(k, c));
+        };
+        let text = &b[start..start + len];
+        let int = &b[first..start + len];
+        let leading_zero = int[0] == b'0' && int.get(1).is_some_and(u8::is_ascii_digit);
+        let bare_dot = text
+            .iter()
+            .position(|&d| d == b'.')
+            .is_some_and(|p| !text.get(p + 1).is_some_and(u8::is_ascii_digit));
+        if leading_zero || bare_dot || !text[len - 1].is_ascii_digit() {
+            return Err(self.not_a_number(k, c));
+        }
+        self.i = start + len;
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(format!(
+                "landmark {k} {c} = {} is out of range for a 64-bit float",
+                String::from_utf8_lossy(text)
+            ))
+        }
+    }
+
+    /// The message for a coordinate that is not a JSON number.
+    fn not_a_number(&self, k: usize, c: &str) -> String {
+        let rest = &self.b[self.i..];
+        match rest.first() {
             Some(b'"') => {
-                let start = self.i + 1;
-                let len = self.b[start..].iter().position(|&b| b == b'"').unwrap_or(0);
-                let v = String::from_utf8_lossy(&self.b[start..start + len]);
+                let len = rest[1..].iter().position(|&b| b == b'"').unwrap_or(0);
+                let v = String::from_utf8_lossy(&rest[1..1 + len]);
                 let t = v.trim().trim_start_matches(['+', '-']).to_ascii_lowercase();
-                return Err(if t == "nan" || t.starts_with("inf") {
+                if t == "nan" || t.starts_with("inf") {
                     format!(
                         "landmark {k} {c} is {v:?}: not a finite number (send null for a missing point)"
                     )
                 } else {
                     format!("landmark {k} {c} is the string {v:?}: send a JSON number")
-                });
+                }
             }
-            _ => {
-                return Err(format!(
-                    "landmark {k} {c} must be a number, found {}",
-                    self.kind()
-                ));
+            Some(b'-' | b'0'..=b'9') => {
+                let len = rest
+                    .iter()
+                    .position(|b| !matches!(b, b'0'..=b'9' | b'-' | b'+' | b'.' | b'e' | b'E'))
+                    .unwrap_or(rest.len());
+                let text = String::from_utf8_lossy(&rest[..len]);
+                format!("landmark {k} {c}: {text:?} is not a JSON number")
             }
-        }
-        let start = self.i;
-        while self
-            .peek()
-            .is_some_and(|b| matches!(b, b'0'..=b'9' | b'-' | b'+' | b'.' | b'e' | b'E'))
-        {
-            self.i += 1;
-        }
-        // ASCII bytes only between start and i: both are char boundaries.
-        let text = self.text.get(start..self.i).unwrap_or("");
-        match text.parse::<f64>() {
-            Ok(v) if v.is_finite() => Ok(v),
-            Ok(_) => Err(format!(
-                "landmark {k} {c} = {text} is out of range for a 64-bit float"
-            )),
-            Err(_) => Err(format!("landmark {k} {c}: {text:?} is not a number")),
+            _ => format!("landmark {k} {c} must be a number, found {}", self.kind()),
         }
     }
 }
@@ -394,8 +427,35 @@ mod tests {
             "[[1,2]] x",
             "[nul]",
             "[[1 2]]",
+            "[[01, 2]]",
+            "[[1., 2]]",
+            "[[.5, 2]]",
+            "[[+1, 2]]",
+            "[[1.e5, 2]]",
+            "[[1e+, 2]]",
+            "[[--1, 2]]",
+            "[[0x10, 2]]",
+            "[[1, 2]",
+            "[[1, 2],]",
         ] {
             assert!(parse_landmarks(odd).is_err(), "{odd}");
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn numbers_read_as_std_reads_them(bits in proptest::prelude::any::<u64>(), digits in 0usize..25) {
+            let v = f64::from_bits(bits);
+            proptest::prop_assume!(v.is_finite());
+            // Shortest round trip, scientific, and rounded to a number of digits (which is
+            // where a parser that is not correctly rounded goes wrong).
+            for text in [format!("{v:?}"), format!("{v:e}"), format!("{v:.digits$e}")] {
+                let json = format!("[[{text}, -{text}]]").replace("--", "");
+                let want: f64 = text.parse().unwrap();
+                let got = parse_landmarks(&json).unwrap().0[0].unwrap();
+                proptest::prop_assert_eq!(got[0].to_bits(), want.to_bits(), "{}", text);
+                proptest::prop_assert_eq!(got[1].to_bits(), (-want).to_bits(), "{}", text);
+            }
         }
     }
 

@@ -26,6 +26,7 @@ use super::http_retrain;
 use super::metrics::{self, FaceTally};
 use super::pose::{FaceSpec, estimate_face, for_each_face, run_maybe_blocking};
 use super::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
+use super::request_json::{read_batch_request, read_pose_request};
 use crate::estimate::Intrinsics;
 use crate::record::{Landmarks, PoseRecord};
 
@@ -90,7 +91,7 @@ impl<'de> Deserialize<'de> for FaceId {
 }
 
 /// `POST /v1/pose`: one face.
-#[derive(Debug, Deserialize, ToSchema)]
+#[derive(Debug, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PoseRequest {
     /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a
@@ -134,7 +135,7 @@ pub struct PoseResponse {
 }
 
 /// One face of a batch; `scheme`, `method` and `camera` default to the batch's.
-#[derive(Debug, Deserialize, ToSchema)]
+#[derive(Debug, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct BatchFace {
     #[schema(value_type = Vec<Option<Vec<f64>>>)]
@@ -152,7 +153,7 @@ pub struct BatchFace {
 }
 
 /// `POST /v1/pose:batch`: many faces, at most `--max-batch` (1000 by default).
-#[derive(Debug, Deserialize, ToSchema)]
+#[derive(Debug, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct BatchRequest {
     pub faces: Vec<BatchFace>,
@@ -478,6 +479,17 @@ async fn drain(mut body: Body, mut seen: u64) {
     .await;
 }
 
+/// Parses a `POST /v1/pose` body: in one pass when it has the usual shape
+/// ([`read_pose_request`]), else with serde and its precise errors ([`parse_json`]).
+pub fn parse_pose_request(bytes: &[u8]) -> Result<PoseRequest, ApiError> {
+    read_pose_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+}
+
+/// [`parse_pose_request`] for `POST /v1/pose:batch`.
+pub fn parse_batch_request(bytes: &[u8]) -> Result<BatchRequest, ApiError> {
+    read_batch_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+}
+
 /// Parses a JSON body. Syntax errors are 400; well-formed JSON with unusable values (wrong
 /// types, unknown or missing fields, NaN or infinite numbers) is 422, with the path to the bad
 /// value.
@@ -605,7 +617,7 @@ pub async fn pose(
 ) -> Result<Response, ApiError> {
     require_json(&headers)?;
     let bytes = read_body(&headers, body, st.limits.max_body).await?;
-    let req: PoseRequest = parse_json(&bytes)?;
+    let req = parse_pose_request(&bytes)?;
     let models = st.registry.snapshot();
     let model = models.get(req.model.as_deref())?;
     let result = estimate_face(
@@ -662,7 +674,7 @@ pub async fn pose_batch(
     let limits = st.limits;
     let inline = bytes.len() <= INLINE_BODY;
     let body = run_maybe_blocking(inline, move || {
-        let req: BatchRequest = parse_json(&bytes)?;
+        let req = parse_batch_request(&bytes)?;
         drop(bytes);
         if req.faces.len() > limits.max_batch {
             return Err(ApiError::batch_too_large(req.faces.len(), limits.max_batch));

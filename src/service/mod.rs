@@ -19,6 +19,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod pose;
 pub mod registry;
+pub mod request_json;
 pub mod retrain;
 pub mod shutdown;
 pub mod stream;
