@@ -94,14 +94,11 @@ pub fn fit_rigid(
         return Err(Error::too_few("rigid fit", 4, present));
     }
     let y: Vec<Vector2<f64>> = landmarks.points().iter().map(image_to_plane).collect();
-    let mut base = vec![0.0; n];
-    for (i, w) in base.iter_mut().enumerate() {
-        if landmarks.present()[i] {
-            *w = if contour.contains(&i) {
-                opts.contour_weight
-            } else {
-                1.0
-            };
+    let present = landmarks.present();
+    let mut base: Vec<f64> = present.iter().map(|&p| f64::from(u8::from(p))).collect();
+    if opts.contour_weight != 1.0 {
+        for &i in contour.iter().filter(|&&i| i < n && present[i]) {
+            base[i] = opts.contour_weight;
         }
     }
     let mut weights = base.clone();
