@@ -71,9 +71,10 @@ impl Serialize for Landmarks {
 }
 
 impl<'de> Deserialize<'de> for Landmarks {
-    /// Through [`parse_landmarks`] on the value's raw text: std's float parsing (correctly
-    /// rounded and fast) rather than serde_json's, whose `float_roundtrip` mode, needed by the
-    /// model bundles, is several times slower on the 136 numbers of a 68-point face.
+    /// Through [`parse_landmarks`] on the value's raw text: fast-float2 (correctly rounded and
+    /// fast) rather than serde_json's float parsing, whose `float_roundtrip` mode, needed by the
+    /// model bundles, is several times slower on the 136 numbers of a 68-point face. The
+    /// service's one-pass body reader calls [`parse_landmarks_at`] directly.
     fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
         let raw = Box::<serde_json::value::RawValue>::deserialize(d)?;
         parse_landmarks(raw.get()).map_err(de::Error::custom)
