@@ -64,6 +64,9 @@ pub struct AflwRow {
     /// (|true yaw|, mean absolute error) per face, for plots.
     #[serde(skip)]
     pub per_face: Vec<(f64, f64)>,
+    /// (estimated, true) pitch, yaw and roll per face, degrees.
+    #[serde(skip)]
+    pub angles: Vec<([f64; 3], [f64; 3])>,
 }
 
 static IBUG68: std::sync::LazyLock<crate::shape::Scheme> = std::sync::LazyLock::new(ibug68);
@@ -106,6 +109,7 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         mae_by_yaw: [0.0; 3],
         faces_by_yaw: [0; 3],
         per_face: Vec::new(),
+        angles: Vec::new(),
     };
     for face in faces.iter().filter(|f| f.within_99) {
         let result =
@@ -136,6 +140,8 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         row.mae_by_yaw[b] += mean;
         row.faces_by_yaw[b] += 1;
         row.per_face.push((face.yaw.abs(), mean));
+        row.angles
+            .push(([a.pitch, a.yaw, a.roll], [face.pitch, face.yaw, face.roll]));
     }
     let n = row.faces.max(1) as f64;
     row.mae_pitch /= n;
@@ -147,6 +153,84 @@ pub fn evaluate(model: &PoseModel, faces: &[AflwFace], method: Method, source: S
         row.mae_by_yaw[b] /= row.faces_by_yaw[b].max(1) as f64;
     }
     row
+}
+
+/// How an estimate relates to the truth, per axis (pitch, yaw, roll), by least squares over the
+/// faces of a row.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Calibration {
+    /// Slope of the estimate regressed on the truth: below 1, the estimates are compressed.
+    pub estimate_on_truth: f64,
+    /// Slope of the truth regressed on the estimate: 1 when the errors are uncorrelated with the
+    /// estimate, so that no rescaling of the estimate lowers them.
+    pub truth_on_estimate: f64,
+    /// Correlation of estimate and truth.
+    pub correlation: f64,
+    /// Mean absolute error after the best affine correction of the estimate (`a + b ·
+    /// estimate`, fitted on these same faces): a floor for any recalibration, not an estimate.
+    pub mae_recalibrated: f64,
+}
+
+/// [`Calibration`] of each axis of `row` (None for fewer than 3 faces or no spread).
+pub fn calibration(row: &AflwRow) -> Option<[Calibration; 3]> {
+    let axis = |k: usize| {
+        let pairs: Vec<(f64, f64)> = row.angles.iter().map(|(e, t)| (e[k], t[k])).collect();
+        if pairs.len() < 3 {
+            return None;
+        }
+        let n = pairs.len() as f64;
+        let me = pairs.iter().map(|p| p.0).sum::<f64>() / n;
+        let mt = pairs.iter().map(|p| p.1).sum::<f64>() / n;
+        let (mut see, mut stt, mut set) = (0.0, 0.0, 0.0);
+        for (e, t) in &pairs {
+            let (de, dt) = (e - me, t - mt);
+            see += de * de;
+            stt += dt * dt;
+            set += de * dt;
+        }
+        if see <= 0.0 || stt <= 0.0 {
+            return None;
+        }
+        let b = set / see;
+        let a = mt - b * me;
+        let mae_recalibrated = pairs
+            .iter()
+            .map(|(e, t)| (a + b * e - t).abs())
+            .sum::<f64>()
+            / n;
+        Some(Calibration {
+            estimate_on_truth: set / stt,
+            truth_on_estimate: b,
+            correlation: set / (see * stt).sqrt(),
+            mae_recalibrated,
+        })
+    };
+    Some([axis(0)?, axis(1)?, axis(2)?])
+}
+
+/// The calibration of `rows` as a Markdown table, one line per row and axis.
+pub fn calibration_markdown(rows: &[&AflwRow]) -> String {
+    let mut s = String::from(
+        "| method | landmarks | axis | MAE | slope of estimate on truth | slope of truth on estimate | correlation | MAE after the best affine correction |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let Some(cal) = calibration(r) else { continue };
+        let mae = [r.mae_pitch, r.mae_yaw, r.mae_roll];
+        for (k, axis) in ["pitch", "yaw", "roll"].iter().enumerate() {
+            let c = cal[k];
+            s.push_str(&format!(
+                "| {} | {} | {axis} | {:.2} | {:.3} | {:.3} | {:.3} | {:.2} |\n",
+                r.method,
+                r.source.name(),
+                mae[k],
+                c.estimate_on_truth,
+                c.truth_on_estimate,
+                c.correlation,
+                c.mae_recalibrated
+            ));
+        }
+    }
+    s
 }
 
 /// The rows as a Markdown table.
@@ -229,6 +313,37 @@ mod tests {
     use crate::model::default_model;
     use nalgebra::Vector2;
 
+    #[test]
+    fn calibration_of_known_lines() {
+        let mut row = evaluate(
+            &default_model().unwrap().1,
+            &[],
+            Method::Fit,
+            Source::Fitted,
+        );
+        // Pitch estimates half the truth plus 1; yaw exact; roll the truth plus scatter that
+        // is independent of it (alternating ±2 over a symmetric design).
+        let truth = [-20.0, -10.0, 10.0, 20.0];
+        let scatter = [2.0, -2.0, -2.0, 2.0];
+        row.angles = truth
+            .iter()
+            .zip(scatter)
+            .map(|(&t, d)| ([0.5 * t + 1.0, t, t + d], [t, t, t]))
+            .collect();
+        let c = calibration(&row).unwrap();
+        assert!((c[0].estimate_on_truth - 0.5).abs() < 1e-12);
+        assert!((c[0].truth_on_estimate - 2.0).abs() < 1e-12);
+        assert!((c[0].correlation - 1.0).abs() < 1e-12);
+        assert!(c[0].mae_recalibrated < 1e-12);
+        assert!((c[1].truth_on_estimate - 1.0).abs() < 1e-12);
+        // Scatter uncorrelated with the truth: the estimate on truth slope stays 1 and the
+        // correction cannot remove it all.
+        assert!((c[2].estimate_on_truth - 1.0).abs() < 1e-12);
+        assert!(c[2].mae_recalibrated > 1.0);
+        row.angles.truncate(2);
+        assert!(calibration(&row).is_none());
+    }
+
     /// A face whose landmarks are the default model's mean seen at a known pose.
     fn face(model: &PoseModel, yaw: f64, pitch: f64, roll: f64) -> AflwFace {
         let a = EulerAngles::new(yaw, pitch, roll).unwrap();
@@ -296,6 +411,7 @@ mod tests {
             geodesic: 0.0,
             mae_by_yaw: [0.0; 3],
             faces_by_yaw: [0; 3],
+            angles: Vec::new(),
             per_face: vec![
                 (1.0, 1.0),
                 (5.0, 2.0),
