@@ -91,7 +91,7 @@ impl<'de> Deserialize<'de> for FaceId {
 }
 
 /// `POST /v1/pose`: one face.
-#[derive(Debug, PartialEq, Deserialize, ToSchema)]
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PoseRequest {
     /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a
@@ -135,7 +135,7 @@ pub struct PoseResponse {
 }
 
 /// One face of a batch; `scheme`, `method` and `camera` default to the batch's.
-#[derive(Debug, PartialEq, Deserialize, ToSchema)]
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct BatchFace {
     #[schema(value_type = Vec<Option<Vec<f64>>>)]
@@ -153,7 +153,7 @@ pub struct BatchFace {
 }
 
 /// `POST /v1/pose:batch`: many faces, at most `--max-batch` (1000 by default).
-#[derive(Debug, PartialEq, Deserialize, ToSchema)]
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct BatchRequest {
     pub faces: Vec<BatchFace>,

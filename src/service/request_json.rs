@@ -32,6 +32,37 @@ pub fn read_batch_request(body: &[u8]) -> Option<BatchRequest> {
     (r.i == body.len()).then_some(req)
 }
 
+/// Reads the members of the object at the reader into the fields of `$out` named as their keys:
+/// `$required` (read by the reader's method of that name) must be there, the `$field`s (read by
+/// serde) may be; each at most once and no other member, or the enclosing function returns
+/// `None`.
+macro_rules! members {
+    ($r:expr, $out:ident, $required:ident, [$($field:ident),* $(,)?]) => {{
+        let mut seen = 0u32;
+        $r.object(|r, key| {
+            if key == stringify!($required).as_bytes() {
+                first_time(&mut seen, 0)?;
+                $out.$required = r.$required()?;
+                return Some(());
+            }
+            let mut bit = 0;
+            $(
+                bit += 1;
+                if key == stringify!($field).as_bytes() {
+                    first_time(&mut seen, bit)?;
+                    $out.$field = r.value()?;
+                    return Some(());
+                }
+            )*
+            let _ = bit;
+            None
+        })?;
+        if seen & 1 == 0 {
+            return None;
+        }
+    }};
+}
+
 struct Reader<'a> {
     b: &'a [u8],
     i: usize,
@@ -107,95 +138,25 @@ impl<'a> Reader<'a> {
     }
 
     fn pose_request(&mut self) -> Option<PoseRequest> {
-        let mut req = PoseRequest {
-            landmarks: Landmarks::default(),
-            scheme: None,
-            method: None,
-            model: None,
-            camera: None,
-            landmark_style: None,
-            id: None,
-        };
-        let mut seen = 0;
-        self.object(|r, key| {
-            match key {
-                b"landmarks" => {
-                    first_time(&mut seen, 0)?;
-                    req.landmarks = r.landmarks()?;
-                }
-                b"scheme" => {
-                    first_time(&mut seen, 1)?;
-                    req.scheme = r.value()?;
-                }
-                b"method" => {
-                    first_time(&mut seen, 2)?;
-                    req.method = r.value()?;
-                }
-                b"model" => {
-                    first_time(&mut seen, 3)?;
-                    req.model = r.value()?;
-                }
-                b"camera" => {
-                    first_time(&mut seen, 4)?;
-                    req.camera = r.value()?;
-                }
-                b"landmark_style" => {
-                    first_time(&mut seen, 5)?;
-                    req.landmark_style = r.value()?;
-                }
-                b"id" => {
-                    first_time(&mut seen, 6)?;
-                    req.id = r.value()?;
-                }
-                _ => return None,
-            }
-            Some(())
-        })?;
-        // `landmarks` is required.
-        (seen & 1 == 1).then_some(req)
+        let mut req = PoseRequest::default();
+        members!(
+            self,
+            req,
+            landmarks,
+            [scheme, method, model, camera, landmark_style, id]
+        );
+        Some(req)
     }
 
     fn batch_face(&mut self) -> Option<BatchFace> {
-        let mut face = BatchFace {
-            landmarks: Landmarks::default(),
-            scheme: None,
-            method: None,
-            camera: None,
-            landmark_style: None,
-            id: None,
-        };
-        let mut seen = 0;
-        self.object(|r, key| {
-            match key {
-                b"landmarks" => {
-                    first_time(&mut seen, 0)?;
-                    face.landmarks = r.landmarks()?;
-                }
-                b"scheme" => {
-                    first_time(&mut seen, 1)?;
-                    face.scheme = r.value()?;
-                }
-                b"method" => {
-                    first_time(&mut seen, 2)?;
-                    face.method = r.value()?;
-                }
-                b"camera" => {
-                    first_time(&mut seen, 3)?;
-                    face.camera = r.value()?;
-                }
-                b"landmark_style" => {
-                    first_time(&mut seen, 4)?;
-                    face.landmark_style = r.value()?;
-                }
-                b"id" => {
-                    first_time(&mut seen, 5)?;
-                    face.id = r.value()?;
-                }
-                _ => return None,
-            }
-            Some(())
-        })?;
-        (seen & 1 == 1).then_some(face)
+        let mut face = BatchFace::default();
+        members!(
+            self,
+            face,
+            landmarks,
+            [scheme, method, camera, landmark_style, id]
+        );
+        Some(face)
     }
 
     fn faces(&mut self) -> Option<Vec<BatchFace>> {
@@ -218,46 +179,14 @@ impl<'a> Reader<'a> {
     }
 
     fn batch_request(&mut self) -> Option<BatchRequest> {
-        let mut req = BatchRequest {
-            faces: Vec::new(),
-            scheme: None,
-            method: None,
-            camera: None,
-            landmark_style: None,
-            model: None,
-        };
-        let mut seen = 0;
-        self.object(|r, key| {
-            match key {
-                b"faces" => {
-                    first_time(&mut seen, 0)?;
-                    req.faces = r.faces()?;
-                }
-                b"scheme" => {
-                    first_time(&mut seen, 1)?;
-                    req.scheme = r.value()?;
-                }
-                b"method" => {
-                    first_time(&mut seen, 2)?;
-                    req.method = r.value()?;
-                }
-                b"camera" => {
-                    first_time(&mut seen, 3)?;
-                    req.camera = r.value()?;
-                }
-                b"landmark_style" => {
-                    first_time(&mut seen, 4)?;
-                    req.landmark_style = r.value()?;
-                }
-                b"model" => {
-                    first_time(&mut seen, 5)?;
-                    req.model = r.value()?;
-                }
-                _ => return None,
-            }
-            Some(())
-        })?;
-        (seen & 1 == 1).then_some(req)
+        let mut req = BatchRequest::default();
+        members!(
+            self,
+            req,
+            faces,
+            [scheme, method, camera, landmark_style, model]
+        );
+        Some(req)
     }
 }
 
