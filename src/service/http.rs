@@ -352,13 +352,17 @@ pub(super) fn require_json(headers: &HeaderMap) -> Result<(), ApiError> {
         ));
     };
     let ct = ct.to_str().unwrap_or("");
-    let mime = ct
-        .split(';')
-        .next()
-        .unwrap_or("")
-        .trim()
-        .to_ascii_lowercase();
-    if mime == "application/json" || (mime.starts_with("application/") && mime.ends_with("+json")) {
+    let mime = ct.split(';').next().unwrap_or("").trim();
+    let ends = |suffix: &str| {
+        mime.len() >= suffix.len()
+            && mime.as_bytes()[mime.len() - suffix.len()..].eq_ignore_ascii_case(suffix.as_bytes())
+    };
+    let starts = |prefix: &str| {
+        mime.as_bytes()
+            .get(..prefix.len())
+            .is_some_and(|p| p.eq_ignore_ascii_case(prefix.as_bytes()))
+    };
+    if mime.eq_ignore_ascii_case("application/json") || (starts("application/") && ends("+json")) {
         Ok(())
     } else {
         Err(ApiError::new(
@@ -585,7 +589,11 @@ fn json_bytes(body: Vec<u8>) -> Response {
 }
 
 fn to_json<T: Serialize>(v: &T) -> Result<Vec<u8>, ApiError> {
-    serde_json::to_vec(v).map_err(|e| ApiError::internal(format!("response serialization: {e}")))
+    // A pose with 68 points is about 800 bytes: one allocation rather than a few regrowths.
+    let mut out = Vec::with_capacity(1024);
+    serde_json::to_writer(&mut out, v)
+        .map_err(|e| ApiError::internal(format!("response serialization: {e}")))?;
+    Ok(out)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -610,13 +618,11 @@ pub struct Deadline(pub Instant);
         (status = 503, description = "Timed out", body = ErrorBody),
     )
 )]
-pub async fn pose(
-    State(st): State<SharedState>,
-    headers: HeaderMap,
-    body: Body,
-) -> Result<Response, ApiError> {
-    require_json(&headers)?;
-    let bytes = read_body(&headers, body, st.limits.max_body).await?;
+pub async fn pose(State(st): State<SharedState>, req: Request) -> Result<Response, ApiError> {
+    // The request whole rather than a `HeaderMap` extractor, which would copy the headers.
+    let (parts, body) = req.into_parts();
+    require_json(&parts.headers)?;
+    let bytes = read_body(&parts.headers, body, st.limits.max_body).await?;
     let req = parse_pose_request(&bytes)?;
     let models = st.registry.snapshot();
     let model = models.get(req.model.as_deref())?;
@@ -637,14 +643,13 @@ pub async fn pose(
     }
     tally.record("http");
     let p = result?;
-    Ok(Json(PoseResponse {
+    Ok(json_bytes(to_json(&PoseResponse {
         pose: p.record,
         scheme: p.scheme,
         model: model.name.clone(),
         model_version: model.version.clone(),
         id: req.id,
-    })
-    .into_response())
+    })?))
 }
 
 /// Estimate many faces; each gets its pose or its own error.
@@ -665,11 +670,11 @@ pub async fn pose(
 pub async fn pose_batch(
     State(st): State<SharedState>,
     Extension(deadline): Extension<Deadline>,
-    headers: HeaderMap,
-    body: Body,
+    req: Request,
 ) -> Result<Response, ApiError> {
-    require_json(&headers)?;
-    let bytes = read_body(&headers, body, st.limits.max_body).await?;
+    let (parts, body) = req.into_parts();
+    require_json(&parts.headers)?;
+    let bytes = read_body(&parts.headers, body, st.limits.max_body).await?;
     let models = st.registry.snapshot();
     let limits = st.limits;
     let inline = bytes.len() <= INLINE_BODY;
@@ -1025,6 +1030,35 @@ pub async fn observe(mut req: Request, next: Next) -> Response {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn json_content_types_are_recognized() {
+        let with = |ct: &str| {
+            let mut h = HeaderMap::new();
+            h.insert(header::CONTENT_TYPE, HeaderValue::from_str(ct).unwrap());
+            require_json(&h).is_ok()
+        };
+        for ok in [
+            "application/json",
+            "Application/JSON; charset=utf-8",
+            " application/json ;x=y",
+            "application/problem+json",
+            "APPLICATION/VND.API+JSON",
+        ] {
+            assert!(with(ok), "{ok}");
+        }
+        for bad in [
+            "text/plain",
+            "application/jsonx",
+            "+json",
+            "application/",
+            "json",
+            "",
+        ] {
+            assert!(!with(bad), "{bad}");
+        }
+        assert!(require_json(&HeaderMap::new()).is_err());
+    }
 
     #[test]
     fn json_errors_are_classified() {
