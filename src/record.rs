@@ -113,7 +113,7 @@ pub fn parse_landmarks_at(
     let mut points = Vec::with_capacity(68);
     c.ws();
     if c.peek() == Some(b']') {
-        return Ok((Landmarks(points), c.i + 1));
+        return Ok((Landmarks::default(), c.i + 1));
     }
     loop {
         let k = points.len();

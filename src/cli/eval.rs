@@ -330,9 +330,9 @@ fn run_real(
         "### Diagnostic: calibration of `auto`\n\n\
          Least-squares lines between the estimated and the true angles over the same faces. On re-annotated landmarks the \
          estimated pitch is compressed (slope of estimate on truth below 1) while the slope of truth on estimate stays near 1: \
-         the pitch error is scatter that is not correlated with the estimate, not a distortion of it, and the best affine \
-         correction of the estimate, fitted on these very faces (an optimistic floor for any recalibration), lowers the MAE \
-         only as far as the last column says.\n\n{}\n",
+         the pitch error is scatter that is not correlated with the estimate, not a distortion of it. The last column is the \
+         lowest MAE that any correction `a + b · estimate` reaches on these very faces (least absolute deviations, fitted \
+         in-sample, so an optimistic floor for an affine recalibration).\n\n{}\n",
         aflw::calibration_markdown(&calibrated)
     );
     // The diagnostic row: where the error on re-annotated landmarks comes from.
