@@ -335,6 +335,15 @@ fn run_real(
          in-sample, so an optimistic floor for an affine recalibration).\n\n{}\n",
         aflw::calibration_markdown(&calibrated)
     );
+    // Near |yaw| 90° Euler angles amplify rotation errors: how much of the MAE that is.
+    let gimbal = format!(
+        "### Diagnostic: Euler angles near |yaw| 90°\n\n\
+         The error of `auto` per |true yaw| bin, as the mean absolute angle error (MAE, the figure above) and as the geodesic \
+         error of the rotation. Near 90° of yaw only pitch - roll (or pitch + roll) is determined, so a rotation a few degrees \
+         off can put pitch and roll tens of degrees off: a handful of faces there carry a large part of the MAE. The last \
+         column is the bin's summed face errors over all the row's faces.\n\n{}\n",
+        aflw::gimbal_markdown(&calibrated)
+    );
     // The diagnostic row: where the error on re-annotated landmarks comes from.
     let diagnostic = rows
         .iter()
@@ -371,7 +380,7 @@ fn run_real(
         model.geometry.ln,
         aflw_markdown(&rows),
         timing.join("; "),
-        diagnostic + &calibration
+        diagnostic + &calibration + &gimbal
     );
     Ok((text, rows))
 }

@@ -263,6 +263,89 @@ pub fn calibration_markdown(rows: &[&AflwRow]) -> String {
     s
 }
 
+/// |true yaw| bins of [`gimbal_markdown`], degrees: the last ones close to 90°, where pitch
+/// and roll stop being separable.
+pub const GIMBAL_BINS: [(f64, f64); 4] = [(0.0, 30.0), (30.0, 60.0), (60.0, 80.0), (80.0, 99.0)];
+
+/// One |true yaw| bin of a row: how the Euler-angle error compares with the geodesic one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GimbalBin {
+    pub faces: usize,
+    /// Mean over the faces of the mean of the three absolute angle errors, degrees.
+    pub mae: f64,
+    /// Mean angle of `R_estimateᵀ R_true`, degrees.
+    pub geodesic: f64,
+    /// This bin's part of the row's MAE: its summed face errors over all faces, degrees.
+    pub share: f64,
+}
+
+/// The row's errors per [`GIMBAL_BINS`] bin, from its per-face angles. Near |yaw| 90° a
+/// rotation error of a few degrees moves pitch and roll by tens (only pitch - roll, or
+/// pitch + roll, is determined there), so the MAE grows much faster than the geodesic error.
+pub fn gimbal_bins(row: &AflwRow) -> [GimbalBin; 4] {
+    let mut bins = [GimbalBin {
+        faces: 0,
+        mae: 0.0,
+        geodesic: 0.0,
+        share: 0.0,
+    }; 4];
+    let rotation = |a: [f64; 3]| {
+        EulerAngles {
+            pitch: a[0],
+            yaw: a[1],
+            roll: a[2],
+        }
+        .to_rotation()
+    };
+    for &(est, truth) in &row.angles {
+        let mean = (0..3)
+            .map(|k| wrap_deg(est[k] - truth[k]).abs())
+            .sum::<f64>()
+            / 3.0;
+        let b = GIMBAL_BINS
+            .iter()
+            .position(|&(lo, hi)| truth[1].abs() >= lo && truth[1].abs() < hi)
+            .unwrap_or(GIMBAL_BINS.len() - 1);
+        bins[b].faces += 1;
+        bins[b].mae += mean;
+        bins[b].geodesic += geodesic_deg(&rotation(est), &rotation(truth));
+    }
+    let total = row.angles.len().max(1) as f64;
+    for b in &mut bins {
+        b.share = b.mae / total;
+        let n = b.faces.max(1) as f64;
+        b.mae /= n;
+        b.geodesic /= n;
+    }
+    bins
+}
+
+/// [`gimbal_bins`] of `rows` as a Markdown table, one line per row and bin.
+pub fn gimbal_markdown(rows: &[&AflwRow]) -> String {
+    let mut s = String::from(
+        "| method | landmarks | \\|true yaw\\| | faces | MAE | geodesic | MAE / geodesic | part of the row's MAE |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        for (b, &(lo, hi)) in gimbal_bins(r).iter().zip(&GIMBAL_BINS) {
+            if b.faces == 0 {
+                continue;
+            }
+            s.push_str(&format!(
+                "| {} | {} | {lo:.0}-{hi:.0} | {} | {:.2} | {:.2} | {:.1} | {:.2} of {:.2} |\n",
+                r.method,
+                r.source.name(),
+                b.faces,
+                b.mae,
+                b.geodesic,
+                b.mae / b.geodesic.max(1e-9),
+                b.share,
+                r.mae_mean
+            ));
+        }
+    }
+    s
+}
+
 /// The rows as a Markdown table.
 pub fn aflw_markdown(rows: &[AflwRow]) -> String {
     let mut s = String::from(
@@ -379,6 +462,37 @@ mod tests {
         assert!((c[0].mae_recalibrated - 2.0).abs() < 1e-3, "{:?}", c[0]);
         row.angles.truncate(2);
         assert!(calibration(&row).is_none());
+    }
+
+    #[test]
+    fn near_90_degrees_of_yaw_the_euler_error_outgrows_the_geodesic_one() {
+        let mut row = evaluate(
+            &default_model().unwrap().1,
+            &[],
+            Method::Fit,
+            Source::Fitted,
+        );
+        // Frontal: 3° of pitch only, so MAE 1 and geodesic 3. At yaw 85°: pitch and roll
+        // both 20° off in opposite directions, which is nearly the same rotation.
+        let near = EulerAngles::new(85.0, 20.0, 20.0).unwrap().to_rotation();
+        let far = EulerAngles::new(85.0, 0.0, 0.0).unwrap().to_rotation();
+        let g = geodesic_deg(&near, &far);
+        assert!(g < 4.0, "{g}");
+        row.angles = vec![
+            ([3.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+            ([20.0, 85.0, 20.0], [0.0, 85.0, 0.0]),
+        ];
+        let bins = gimbal_bins(&row);
+        assert_eq!(bins.map(|b| b.faces), [1, 0, 0, 1]);
+        assert!((bins[0].mae - 1.0).abs() < 1e-12 && (bins[0].geodesic - 3.0).abs() < 1e-9);
+        assert!((bins[3].mae - 40.0 / 3.0).abs() < 1e-12);
+        assert!((bins[3].geodesic - g).abs() < 1e-9);
+        // The shares add up to the mean of the face errors.
+        let total: f64 = bins.iter().map(|b| b.share).sum();
+        assert!((total - (1.0 + 40.0 / 3.0) / 2.0).abs() < 1e-12);
+        let table = gimbal_markdown(&[&row]);
+        assert_eq!(table.lines().count(), 4, "{table}");
+        assert!(table.contains("| 80-99 | 1 | 13.33 |"), "{table}");
     }
 
     /// A face whose landmarks are the default model's mean seen at a known pose.
