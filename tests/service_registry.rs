@@ -1324,3 +1324,48 @@ async fn replicas_sharing_a_folder_converge() {
         }
     }
 }
+
+/// SIGTERM with retraining jobs accepted (one training, one queued behind it): the drain waits
+/// for both, so the uploads the server said 202 to are not lost; their versions are in the
+/// folder when the process exits 0.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_waits_for_the_accepted_retraining_jobs() {
+    let dir = TempDir::new("drain-jobs");
+    let mut server = Server::start_with(
+        &[
+            "--models",
+            dir.arg(),
+            "--registry-poll",
+            "1s",
+            "--drain-timeout",
+            "30s",
+        ],
+        None,
+        &[("FACEPOSE_ADMIN_TOKEN", TOKEN)],
+    );
+    let c = client();
+    let body = json!({"shapes": shapes_json(&population(120, |p| p)),
+        "options": quick_options(), "activate": false});
+    for _ in 0..2 {
+        let (s, job) = post_admin(&c, &server, "/v1/models", &body).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+    }
+    drop(c);
+    server.terminate();
+    let status = server
+        .wait_exit(Duration::from_secs(30))
+        .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
+    assert!(status.success(), "{status:?}\n{}", server.logs());
+    for version in ["2", "3"] {
+        let file = dir
+            .path()
+            .join("default/versions")
+            .join(version)
+            .join(MODEL_FILE);
+        assert!(
+            load_model(&file).is_ok(),
+            "version {version} missing; logs:\n{}",
+            server.logs()
+        );
+    }
+}

@@ -412,7 +412,7 @@ impl PoseService for PoseApi {
             state.registry.require_dir()?;
             let _permit = self.permit()?;
             // A queue slot before the upload is read: queued uploads bound the memory.
-            let slot = state.jobs.reserve()?;
+            let slot = state.reserve_job()?;
             let limits = state.limits;
             let mut inbound = request.into_inner();
             let mut chunks = ChunkCollector::new(limits.max_upload);

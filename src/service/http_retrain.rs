@@ -221,7 +221,7 @@ pub async fn retrain(
         .and_then(|()| st.registry.require_dir().map(drop))
         .and_then(|()| require_json(&headers));
     // A place in the queue before the body is read: uploads in memory are bounded too.
-    let slot = match refused.and_then(|()| st.jobs.reserve()) {
+    let slot = match refused.and_then(|()| st.reserve_job()) {
         Ok(slot) => slot,
         Err(e) => {
             discard_body(&headers, body).await;

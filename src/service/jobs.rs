@@ -10,8 +10,10 @@
 //! - Finished jobs are kept for [`JOB_TTL`], and at most [`MAX_JOBS`] jobs are kept in all
 //!   (the oldest finished ones go first).
 //! - Job ids are per replica: the table is in memory, so a job is visible only on the replica
-//!   that accepted its upload, and is lost if that replica restarts (the versions it wrote are
-//!   not: they are in the models folder).
+//!   that accepted its upload (the versions it wrote are in the models folder, seen by all).
+//! - On SIGTERM the drain waits for the accepted jobs, queued and running ([`Jobs::idle`]),
+//!   within `--drain-timeout`, and uploads that arrive meanwhile are refused (503 /
+//!   UNAVAILABLE); only jobs cut off by the cap are lost, and logged by id.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -291,6 +293,25 @@ impl Jobs {
         });
     }
 
+    /// Resolves once no job is queued or running and no upload is being received (the drain
+    /// waits for it: the uploads the server accepted are not dropped on shutdown).
+    pub async fn idle(&self) {
+        let all = u32::try_from(self.max_queued.saturating_add(1)).unwrap_or(u32::MAX);
+        let _all = self.slots.acquire_many(all).await;
+    }
+
+    /// The ids and states of the jobs not finished, oldest first.
+    pub fn unfinished(&self) -> Vec<(String, &'static str)> {
+        let table = self.table();
+        let mut left: Vec<_> = table
+            .values()
+            .filter(|e| !e.job.state.is_finished())
+            .map(|e| (e.job.created.clone(), e.job.id.clone(), e.job.state.name()))
+            .collect();
+        left.sort();
+        left.into_iter().map(|(_, id, state)| (id, state)).collect()
+    }
+
     /// Waits for the trainer (jobs are served in order).
     pub async fn trainer(&self) -> Option<OwnedSemaphorePermit> {
         self.trainer.clone().acquire_owned().await.ok()
@@ -342,5 +363,33 @@ mod tests {
         assert_eq!(jobs.get("nope").unwrap_err().kind, ErrorKind::NotFound);
         assert_eq!(a.id.len(), 32);
         assert_eq!(queued(&jobs.table()), 1);
+    }
+
+    #[tokio::test]
+    async fn idle_waits_for_every_slot() {
+        let jobs = Arc::new(Jobs::new(2));
+        let slot = jobs.reserve().unwrap();
+        let a = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let b = jobs.create("m", "shapes", 10, true, None).unwrap();
+        jobs.stage(&b.id, JobStage::Training, 0.1);
+        let mut left = jobs.unfinished();
+        left.sort();
+        let mut want = vec![(a.id.clone(), "queued"), (b.id.clone(), "running")];
+        want.sort();
+        assert_eq!(left, want);
+        let waiter = tokio::spawn({
+            let jobs = jobs.clone();
+            async move { jobs.idle().await }
+        });
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        assert!(!waiter.is_finished(), "idle with a slot taken");
+        jobs.succeed(&a.id);
+        jobs.fail(&b.id, "no".into());
+        assert!(jobs.unfinished().is_empty());
+        drop(slot);
+        tokio::time::timeout(Duration::from_secs(1), waiter)
+            .await
+            .expect("idle once the slot is free")
+            .unwrap();
     }
 }

@@ -67,6 +67,17 @@ pub struct AppState {
     pub openapi: String,
 }
 
+impl AppState {
+    /// A place in the retraining queue for an upload about to be read: 503 / UNAVAILABLE while
+    /// draining (the upload belongs on another replica), 429 when the queue is full.
+    pub fn reserve_job(&self) -> Result<jobs::Slot, errors::ApiError> {
+        if !self.lifecycle.is_ready() {
+            return Err(errors::ApiError::shutting_down());
+        }
+        self.jobs.reserve()
+    }
+}
+
 /// Why the service could not start or serve.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
@@ -228,10 +239,35 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     });
     let drained = state.lifecycle.drained();
     let cap = cfg.drain_timeout;
+    // The drain ends when every connection is closed and every accepted retraining job has
+    // ended, or at the cap.
+    let jobs_state = state.clone();
+    let finish = async move {
+        server.into_future().await?;
+        let left = jobs_state.jobs.unfinished();
+        if !left.is_empty() {
+            tracing::info!(
+                jobs = left.len(),
+                "waiting for the accepted retraining jobs"
+            );
+        }
+        jobs_state.jobs.idle().await;
+        Ok::<(), std::io::Error>(())
+    };
     tokio::select! {
-        result = server.into_future() => result?,
+        result = finish => result?,
         _ = async { drained.await; tokio::time::sleep(cap).await } => {
-            tracing::warn!(?cap, "drain timed out; closing the remaining connections");
+            let abandoned = state.jobs.unfinished();
+            if abandoned.is_empty() {
+                tracing::warn!(?cap, "drain timed out; closing the remaining connections");
+            } else {
+                tracing::error!(
+                    ?cap,
+                    ?abandoned,
+                    "drain timed out; closing the remaining connections and abandoning \
+                     retraining jobs (their uploads must be sent again)"
+                );
+            }
         }
     }
     tracing::info!("stopped");

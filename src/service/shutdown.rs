@@ -2,8 +2,10 @@
 //!
 //! The drain, in order: `/readyz` answers 503 and the gRPC health service NOT_SERVING (so load
 //! balancers stop sending new work), the listener stops accepting, open streams are told to end
-//! (UNAVAILABLE, "server shutting down"), in-flight requests finish, and the process exits once
-//! every connection is done or `--drain-timeout` has passed, whichever comes first.
+//! (UNAVAILABLE, "server shutting down"), in-flight requests finish, new retraining uploads are
+//! refused (503 / UNAVAILABLE), and the process exits once every connection is done and every
+//! accepted retraining job has ended, or `--drain-timeout` has passed, whichever comes first
+//! (jobs cut off then are logged by id).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
