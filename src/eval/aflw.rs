@@ -426,14 +426,19 @@ mod tests {
     use crate::model::default_model;
     use nalgebra::Vector2;
 
-    #[test]
-    fn calibration_of_known_lines() {
-        let mut row = evaluate(
+    /// A row over no faces, for tests that set its per-face angles.
+    fn empty_row() -> AflwRow {
+        evaluate(
             &default_model().unwrap().1,
             &[],
             Method::Fit,
             Source::Fitted,
-        );
+        )
+    }
+
+    #[test]
+    fn calibration_of_known_lines() {
+        let mut row = empty_row();
         // Pitch estimates half the truth plus 1; yaw exact; roll the truth plus scatter that
         // is independent of it (alternating ±2 over a symmetric design).
         let truth = [-20.0, -10.0, 10.0, 20.0];
@@ -466,12 +471,7 @@ mod tests {
 
     #[test]
     fn near_90_degrees_of_yaw_the_euler_error_outgrows_the_geodesic_one() {
-        let mut row = evaluate(
-            &default_model().unwrap().1,
-            &[],
-            Method::Fit,
-            Source::Fitted,
-        );
+        let mut row = empty_row();
         // Frontal: 3° of pitch only, so MAE 1 and geodesic 3. At yaw 85°: pitch and roll
         // both 20° off in opposite directions, which is nearly the same rotation.
         let near = EulerAngles::new(85.0, 20.0, 20.0).unwrap().to_rotation();
