@@ -124,6 +124,11 @@ pub struct ConfigError {
     pub reason: String,
 }
 
+/// The most requests in progress or streams open that the flags may allow.
+pub const MAX_COUNT: usize = 1 << 20;
+/// The most retraining jobs that may wait behind the one training.
+pub const MAX_QUEUED_JOBS: usize = 1024;
+
 fn bad(flag: &str, reason: impl Into<String>) -> ConfigError {
     ConfigError {
         setting: format!("--{flag}"),
@@ -147,13 +152,21 @@ impl ServeArgs {
                 Ok(v)
             }
         };
+        // Counts held by semaphores, which take at most `usize::MAX >> 3` permits.
+        let count = |flag, v: usize, max: usize| {
+            if v > max {
+                Err(bad(flag, format!("must be at most {max}, got {v}")))
+            } else {
+                positive(flag, v)
+            }
+        };
         let limits = Limits {
             max_batch: positive("max-batch", self.max_batch)?,
             max_body: parse_size(&self.max_body).map_err(|r| bad("max-body", r))?,
             request_timeout: parse_duration(&self.request_timeout)
                 .map_err(|r| bad("request-timeout", r))?,
-            max_concurrency: positive("max-concurrency", self.max_concurrency)?,
-            max_streams: positive("max-streams", self.max_streams)?,
+            max_concurrency: count("max-concurrency", self.max_concurrency, MAX_COUNT)?,
+            max_streams: count("max-streams", self.max_streams, MAX_COUNT)?,
             max_upload: parse_size(&self.max_upload).map_err(|r| bad("max-upload", r))?,
             upload_timeout: parse_duration(&self.upload_timeout)
                 .map_err(|r| bad("upload-timeout", r))?,
@@ -163,6 +176,17 @@ impl ServeArgs {
         }
         if limits.upload_timeout.is_zero() {
             return Err(bad("upload-timeout", "must be positive"));
+        }
+        // Every queued job holds its upload (up to --max-upload) in memory.
+        if self.max_queued_jobs > MAX_QUEUED_JOBS {
+            return Err(bad(
+                "max-queued-jobs",
+                format!(
+                    "must be at most {MAX_QUEUED_JOBS}, got {} (each queued job holds its upload \
+                     in memory)",
+                    self.max_queued_jobs
+                ),
+            ));
         }
         let registry_poll =
             parse_duration(&self.registry_poll).map_err(|r| bad("registry-poll", r))?;
@@ -329,6 +353,15 @@ mod tests {
             (&["--log", "=="][..], "--log"),
             (&["--max-upload", "1"][..], "--max-upload"),
             (&["--registry-poll", "1ms"][..], "--registry-poll"),
+            (
+                &["--max-concurrency", "18446744073709551615"][..],
+                "--max-concurrency",
+            ),
+            (&["--max-streams", "0"][..], "--max-streams"),
+            (
+                &["--max-queued-jobs", "18446744073709551615"][..],
+                "--max-queued-jobs",
+            ),
             (
                 &["--admin-token-file", "/nonexistent/token"][..],
                 "--admin-token-file",
