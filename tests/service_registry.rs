@@ -163,7 +163,7 @@ async fn wait_job(c: &reqwest::Client, server: &Server, id: &str) -> Value {
     loop {
         let (s, j) = get(c, server, &format!("/v1/models/jobs/{id}")).await;
         assert_eq!(s, StatusCode::OK, "{j}");
-        if j["state"] == "succeeded" || j["state"] == "failed" {
+        if j["state"] == "succeeded" || j["state"] == "failed" || j["state"] == "cancelled" {
             return j;
         }
         assert!(t.elapsed() < Duration::from_secs(60), "job still {j}");
@@ -1368,4 +1368,99 @@ async fn sigterm_waits_for_the_accepted_retraining_jobs() {
             server.logs()
         );
     }
+}
+
+/// Cancelling: three jobs accepted, the third (queued behind two) cancelled over gRPC never
+/// trains, the other two write their versions; then every refusal over HTTP: the same job
+/// again, a finished one, an unknown id, no token, no action.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_queued_job_can_be_cancelled() {
+    let dir = TempDir::new("cancel");
+    let server = admin_server(&dir, "1s");
+    let c = client();
+    let body = json!({"shapes": shapes_json(&population(120, |p| p)), "activate": false});
+    let mut ids = Vec::new();
+    for _ in 0..3 {
+        let (s, job) = post_admin(&c, &server, "/v1/models", &body).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+        ids.push(job["id"].as_str().unwrap().to_string());
+    }
+    let mut grpc = server.grpc().await;
+    let cancel = |id: &str, token: bool| {
+        let mut req =
+            tonic::Request::new(facepose::service::proto::CancelJobRequest { id: id.to_string() });
+        if token {
+            req.metadata_mut()
+                .insert("authorization", format!("Bearer {TOKEN}").parse().unwrap());
+        }
+        req
+    };
+    let job = grpc
+        .cancel_job(cancel(&ids[2], true))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        (job.state.as_str(), job.version.as_str()),
+        ("cancelled", "")
+    );
+    let e = grpc.cancel_job(cancel(&ids[2], false)).await.unwrap_err();
+    assert_eq!(e.code(), Code::Unauthenticated, "{e:?}");
+    let e = grpc.cancel_job(cancel("0123", true)).await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound, "{e:?}");
+
+    for (id, want) in ids.iter().zip(["succeeded", "succeeded", "cancelled"]) {
+        let job = wait_job(&c, &server, id).await;
+        assert_eq!(job["state"], want, "{job}");
+    }
+    // Versions 2 and 3 are written; the cancelled job wrote none.
+    let versions = dir.path().join("default/versions");
+    for v in ["2", "3"] {
+        assert!(
+            load_model(&versions.join(v).join(MODEL_FILE)).is_ok(),
+            "version {v}"
+        );
+    }
+    assert!(!versions.join("4").exists(), "{}", server.logs());
+    assert!(server.logs().contains("retraining job cancelled"));
+
+    let cancel_http = |id: &str| format!("/v1/models/jobs/{id}:cancel");
+    let (s, e) = post_admin(&c, &server, &cancel_http(&ids[2]), &json!({})).await;
+    assert_eq!(s, StatusCode::CONFLICT, "{e}");
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("already been cancelled"),
+        "{e}"
+    );
+    let (s, e) = post_admin(&c, &server, &cancel_http(&ids[0]), &json!({})).await;
+    assert_eq!(s, StatusCode::CONFLICT, "{e}");
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("already succeeded"),
+        "{e}"
+    );
+    let (s, e) = post_admin(&c, &server, &cancel_http("nope"), &json!({})).await;
+    assert_eq!(s, StatusCode::NOT_FOUND, "{e}");
+    let (s, e) = post_admin(
+        &c,
+        &server,
+        &format!("/v1/models/jobs/{}", ids[0]),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(s, StatusCode::NOT_FOUND, "{e}");
+    assert!(
+        e["error"]["message"].as_str().unwrap().contains(":cancel"),
+        "{e}"
+    );
+    let r = c
+        .post(server.url(&cancel_http(&ids[0])))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
 }

@@ -459,6 +459,22 @@ impl PoseService for PoseApi {
         .await
     }
 
+    async fn cancel_job(
+        &self,
+        request: Request<proto::CancelJobRequest>,
+    ) -> Result<Response<proto::Job>, Status> {
+        let state = self.state.clone();
+        unary(self, "CancelJob", async move {
+            authorize(&state, &request)?;
+            let id = request.into_inner().id;
+            if id.is_empty() {
+                return Err(ApiError::invalid("missing id: set CancelJobRequest.id"));
+            }
+            Ok(job_message(&state.jobs.cancel(&id)?))
+        })
+        .await
+    }
+
     async fn list_versions(
         &self,
         request: Request<proto::ListVersionsRequest>,

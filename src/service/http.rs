@@ -835,7 +835,7 @@ pub async fn openapi(State(st): State<SharedState>) -> Response {
             Rz(roll), given row-major. The same service answers gRPC (facepose.v1.PoseService) \
             on the same port."
     ),
-    paths(pose, pose_batch, list_models, get_model, http_retrain::retrain, http_retrain::get_job,
+    paths(pose, pose_batch, list_models, get_model, http_retrain::retrain, http_retrain::get_job, http_retrain::job_action,
         http_registry::list_versions, http_registry::version_action, http_registry::delete_version,
         healthz, readyz, metrics_text, openapi),
     components(schemas(ErrorBody, ApiError, ErrorKind)),
@@ -867,7 +867,10 @@ pub fn router(state: SharedState) -> Router {
         .route("/v1/pose:batch", post(pose_batch))
         .route("/v1/models", get(list_models).post(http_retrain::retrain))
         .route("/v1/models/{name}", get(get_model))
-        .route("/v1/models/jobs/{id}", get(http_retrain::get_job))
+        .route(
+            "/v1/models/jobs/{id}",
+            get(http_retrain::get_job).post(http_retrain::job_action),
+        )
         .route(
             "/v1/models/{name}/versions",
             get(http_registry::list_versions),

@@ -12,7 +12,7 @@ use serde::Deserialize;
 use utoipa::ToSchema;
 
 use super::AppState;
-use super::errors::{ApiError, ErrorBody};
+use super::errors::{ApiError, ErrorBody, ErrorKind};
 use super::http::{discard_body, parse_json, read_body_limited, require_json};
 use super::http_registry::authorize;
 use super::jobs::Job;
@@ -263,6 +263,34 @@ pub async fn get_job(
     Path(id): Path<String>,
 ) -> Result<Json<Job>, ApiError> {
     Ok(Json(st.jobs.get(&id)?))
+}
+
+/// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
+/// trains; a running one stops at its next stage, before its version is written.
+#[utoipa::path(post, path = "/v1/models/jobs/{id}", tag = "registry",
+    params(("id" = String, Path, description = "`<id>:cancel`")),
+    security(("admin_token" = [])),
+    responses(
+        (status = 200, description = "Cancelled (state `cancelled`)", body = Job),
+        (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
+        (status = 404, description = "Unknown job (ids are per replica), or no action", body = ErrorBody),
+        (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
+pub async fn job_action(
+    State(st): State<SharedState>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<Json<Job>, ApiError> {
+    authorize(&st, &headers)?;
+    let Some(job) = id.strip_suffix(":cancel") else {
+        return Err(ApiError::new(
+            ErrorKind::NotFound,
+            format!(
+                "no action in POST /v1/models/jobs/{id}: to cancel the job, POST \
+                 /v1/models/jobs/{id}:cancel"
+            ),
+        ));
+    };
+    Ok(Json(st.jobs.cancel(job)?))
 }
 
 #[cfg(test)]

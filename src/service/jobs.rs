@@ -7,6 +7,8 @@
 //!   ([`Jobs::reserve`]) before its body is read, and the job keeps it until it ends; an
 //!   upload beyond that is refused at once with 429 / UNAVAILABLE (retry later), so uploads in
 //!   memory are bounded too.
+//! - A job can be cancelled until it starts writing its version ([`Jobs::cancel`]): a queued
+//!   one never trains, a running one stops at its next stage. A finished job never changes.
 //! - Finished jobs are kept for [`JOB_TTL`], and at most [`MAX_JOBS`] jobs are kept in all
 //!   (the oldest finished ones go first).
 //! - Job ids are per replica: the table is in memory, so a job is visible only on the replica
@@ -20,7 +22,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
-use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
 
 use super::errors::{ApiError, ErrorKind};
 use crate::model::validate::ValidationReport;
@@ -42,6 +44,8 @@ pub enum JobState {
     Succeeded,
     /// Done: see `error` (and `validation` for the shapes that were dropped).
     Failed,
+    /// Done: cancelled (`POST /v1/models/jobs/{id}:cancel`) before its version was written.
+    Cancelled,
 }
 
 impl JobState {
@@ -52,12 +56,16 @@ impl JobState {
             JobState::Running => "running",
             JobState::Succeeded => "succeeded",
             JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
         }
     }
 
-    /// Succeeded or failed.
+    /// Succeeded, failed or cancelled: a finished job no longer changes.
     pub fn is_finished(self) -> bool {
-        matches!(self, JobState::Succeeded | JobState::Failed)
+        matches!(
+            self,
+            JobState::Succeeded | JobState::Failed | JobState::Cancelled
+        )
     }
 }
 
@@ -122,6 +130,8 @@ pub struct Job {
 struct Entry {
     job: Job,
     finished: Option<Instant>,
+    /// Wakes the job's task if it is waiting for the trainer when it is cancelled.
+    cancel: Arc<Notify>,
 }
 
 /// The job table and the trainer's queue.
@@ -232,6 +242,7 @@ impl Jobs {
             Entry {
                 job: job.clone(),
                 finished: None,
+                cancel: Arc::new(Notify::new()),
             },
         );
         super::metrics::retrain_jobs_waiting(queued(&table));
@@ -240,39 +251,92 @@ impl Jobs {
 
     /// The job `id`.
     pub fn get(&self, id: &str) -> Result<Job, ApiError> {
-        self.table().get(id).map(|e| e.job.clone()).ok_or_else(|| {
-            ApiError::new(
-                ErrorKind::NotFound,
-                format!(
-                    "unknown job {id:?}: job ids are per replica and kept for an hour after the \
-                     job ends; ask the replica that accepted the upload (GET /v1/models lists \
-                     the versions every replica sees)"
-                ),
-            )
-        })
+        self.table()
+            .get(id)
+            .map(|e| e.job.clone())
+            .ok_or_else(|| unknown(id))
     }
 
-    /// Changes a job (and its `updated` time); a finished job starts its time to live.
+    /// Changes a job (and its `updated` time); a finished job starts its time to live. A job
+    /// already finished (a cancelled one, say) is left as it is.
     pub fn update(&self, id: &str, f: impl FnOnce(&mut Job)) {
         let mut table = self.table();
         if let Some(e) = table.get_mut(id) {
-            f(&mut e.job);
-            e.job.updated = now_rfc3339();
-            if e.job.state.is_finished() && e.finished.is_none() {
-                e.finished = Some(Instant::now());
-                super::metrics::retrain_job_finished(e.job.state.name());
-            }
+            change(e, f);
         }
         super::metrics::retrain_jobs_waiting(queued(&table));
     }
 
-    /// The job is running `stage`, `progress` done.
-    pub fn stage(&self, id: &str, stage: JobStage, progress: f64) {
+    /// The job is running `stage`, `progress` done; false (and nothing changes) when it has
+    /// been cancelled, so the job stops there.
+    #[must_use]
+    pub fn stage(&self, id: &str, stage: JobStage, progress: f64) -> bool {
+        let mut running = false;
         self.update(id, |j| {
             j.state = JobState::Running;
             j.stage = Some(stage);
             j.progress = progress;
+            running = true;
         });
+        running
+    }
+
+    /// Cancels a job that has not started writing its version: a queued one never trains, a
+    /// running one stops at its next stage (what it computed is dropped). 404 for an unknown
+    /// job; 409 for a finished one, or one writing or activating its version (too late: roll
+    /// back or delete the version once the job ends).
+    pub fn cancel(&self, id: &str) -> Result<Job, ApiError> {
+        let mut table = self.table();
+        let e = table.get_mut(id).ok_or_else(|| unknown(id))?;
+        let too_late = |what: String| {
+            ApiError::new(
+                ErrorKind::Conflict,
+                format!("job {id} {what}; there is nothing to cancel"),
+            )
+        };
+        match (e.job.state, e.job.stage) {
+            (s, _) if s.is_finished() => {
+                return Err(too_late(format!("has already {}", finished_verb(s))));
+            }
+            (_, Some(stage @ (JobStage::Writing | JobStage::Activating))) => {
+                return Err(ApiError::new(
+                    ErrorKind::Conflict,
+                    format!(
+                        "job {id} is {} its version: too late to cancel; once it ends, activate \
+                         another version or delete this one (/v1/models/{}/versions)",
+                        stage.name(),
+                        e.job.model
+                    ),
+                ));
+            }
+            _ => {}
+        }
+        change(e, |j| {
+            j.state = JobState::Cancelled;
+            j.stage = None;
+        });
+        e.cancel.notify_one();
+        let job = e.job.clone();
+        super::metrics::retrain_jobs_waiting(queued(&table));
+        Ok(job)
+    }
+
+    /// Resolves when job `id` is cancelled (at once if it already was; never for an unknown
+    /// job).
+    pub async fn cancelled(&self, id: &str) {
+        let signal = {
+            let table = self.table();
+            table
+                .get(id)
+                .map(|e| (e.job.state == JobState::Cancelled, e.cancel.clone()))
+        };
+        let signal = match signal {
+            Some((true, _)) => return,
+            Some((false, s)) => s,
+            None => return std::future::pending().await,
+        };
+        // A cancel between the look-up and this wait left a permit: it ends at once.
+        signal.notified().await
     }
 
     /// The job has ended well.
@@ -318,6 +382,38 @@ impl Jobs {
     }
 }
 
+/// Applies `f` to a job not finished, with the bookkeeping of [`Jobs::update`].
+fn change(e: &mut Entry, f: impl FnOnce(&mut Job)) {
+    if e.job.state.is_finished() {
+        return;
+    }
+    f(&mut e.job);
+    e.job.updated = now_rfc3339();
+    if e.job.state.is_finished() {
+        e.finished = Some(Instant::now());
+        super::metrics::retrain_job_finished(e.job.state.name());
+    }
+}
+
+/// "succeeded", "failed", "been cancelled": after "has already".
+fn finished_verb(s: JobState) -> &'static str {
+    match s {
+        JobState::Cancelled => "been cancelled",
+        other => other.name(),
+    }
+}
+
+fn unknown(id: &str) -> ApiError {
+    ApiError::new(
+        ErrorKind::NotFound,
+        format!(
+            "unknown job {id:?}: job ids are per replica and kept for an hour after the job \
+             ends; ask the replica that accepted the upload (GET /v1/models lists the versions \
+             every replica sees)"
+        ),
+    )
+}
+
 /// Jobs waiting for the trainer (not the one running).
 fn queued(table: &BTreeMap<String, Entry>) -> usize {
     table
@@ -343,7 +439,7 @@ mod tests {
         let a = jobs.create("m", "shapes", 10, true, None).unwrap();
         let b = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert_eq!(queued(&jobs.table()), 2);
-        jobs.stage(&a.id, JobStage::Training, 0.5);
+        assert!(jobs.stage(&a.id, JobStage::Training, 0.5));
         assert_eq!(jobs.get(&a.id).unwrap().state, JobState::Running);
         // The running job is not waiting.
         assert_eq!(queued(&jobs.table()), 1);
@@ -366,12 +462,60 @@ mod tests {
     }
 
     #[tokio::test]
+    async fn cancelling_stops_a_job_before_it_writes() {
+        let jobs = Arc::new(Jobs::new(4));
+        let waiting = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let running = jobs.create("m", "shapes", 10, true, None).unwrap();
+        let writing = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert!(jobs.stage(&running.id, JobStage::Training, 0.3));
+        assert!(jobs.stage(&writing.id, JobStage::Writing, 0.85));
+
+        // A queued job: cancelled at once, and its task, waiting for the trainer, is woken
+        // (also when it starts waiting after the cancel).
+        let waiter = tokio::spawn({
+            let (jobs, id) = (jobs.clone(), waiting.id.clone());
+            async move { jobs.cancelled(&id).await }
+        });
+        let j = jobs.cancel(&waiting.id).unwrap();
+        assert_eq!((j.state, j.stage), (JobState::Cancelled, None));
+        tokio::time::timeout(Duration::from_secs(1), waiter)
+            .await
+            .expect("the waiting task is woken")
+            .unwrap();
+        tokio::time::timeout(Duration::from_secs(1), jobs.cancelled(&waiting.id))
+            .await
+            .expect("a later wait ends at once");
+
+        // A running job: cancelled; its next stage does not start and nothing overwrites it.
+        assert_eq!(jobs.cancel(&running.id).unwrap().state, JobState::Cancelled);
+        assert!(!jobs.stage(&running.id, JobStage::Writing, 0.85));
+        jobs.fail(&running.id, "late".into());
+        let j = jobs.get(&running.id).unwrap();
+        assert_eq!((j.state, j.error), (JobState::Cancelled, None));
+
+        // Too late, or nothing to cancel: 409; unknown: 404.
+        let e = jobs.cancel(&writing.id).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(e.message.contains("is writing its version"), "{e}");
+        assert!(e.message.contains("/v1/models/m/versions"), "{e}");
+        let e = jobs.cancel(&waiting.id).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(e.message.contains("has already been cancelled"), "{e}");
+        jobs.succeed(&writing.id);
+        let e = jobs.cancel(&writing.id).unwrap_err();
+        assert!(e.message.contains("has already succeeded"), "{e}");
+        assert_eq!(jobs.cancel("nope").unwrap_err().kind, ErrorKind::NotFound);
+        assert!(jobs.unfinished().is_empty());
+        assert_eq!(queued(&jobs.table()), 0);
+    }
+
+    #[tokio::test]
     async fn idle_waits_for_every_slot() {
         let jobs = Arc::new(Jobs::new(2));
         let slot = jobs.reserve().unwrap();
         let a = jobs.create("m", "shapes", 10, true, None).unwrap();
         let b = jobs.create("m", "shapes", 10, true, None).unwrap();
-        jobs.stage(&b.id, JobStage::Training, 0.1);
+        assert!(jobs.stage(&b.id, JobStage::Training, 0.1));
         let mut left = jobs.unfinished();
         left.sort();
         let mut want = vec![(a.id.clone(), "queued"), (b.id.clone(), "running")];

@@ -95,17 +95,24 @@ fn reconstruct_all(
     Ok(v)
 }
 
-/// Runs an accepted job to its end (after the jobs accepted before it); every outcome is
-/// recorded in the job table.
+/// Runs an accepted job to its end (after the jobs accepted before it, unless it is cancelled
+/// while it waits); every outcome is recorded in the job table.
 pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Work) {
-    let Some(_trainer) = state.jobs.trainer().await else {
+    let trainer = tokio::select! {
+        biased;
+        () = state.jobs.cancelled(&id) => None,
+        permit = state.jobs.trainer() => permit,
+    };
+    let Some(_trainer) = trainer else {
+        tracing::info!("retraining job cancelled while queued");
         return;
     };
     match steps(&state, &id, &spec, work).await {
-        Ok(version) => {
+        Ok(Some(version)) => {
             tracing::info!(version = %version, activated = spec.activate, "retraining job succeeded");
             state.jobs.succeed(&id);
         }
+        Ok(None) => tracing::info!("retraining job cancelled"),
         Err(e) => {
             tracing::warn!(error = %e.message, "retraining job failed");
             state.jobs.fail(&id, e.message);
@@ -113,18 +120,21 @@ pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Wor
     }
 }
 
-/// The job's steps; the version written.
+/// The job's steps; the version written, or `None` when the job was cancelled (checked as
+/// each stage starts; the last chance is before writing).
 async fn steps(
     state: &Arc<AppState>,
     id: &str,
     spec: &Arc<JobSpec>,
     work: Work,
-) -> Result<String, ApiError> {
+) -> Result<Option<String>, ApiError> {
     let jobs = &state.jobs;
     let validated = match work {
         Work::Shapes(v) => v,
         Work::Subjects { views, dropped } => {
-            jobs.stage(id, JobStage::Validating, 0.0);
+            if !jobs.stage(id, JobStage::Validating, 0.0) {
+                return Ok(None);
+            }
             let (st, jid, sp) = (state.clone(), id.to_string(), spec.clone());
             let v = on_blocking_pool("structure from motion", move || {
                 reconstruct_all(&sp, &views, dropped, |f| {
@@ -139,7 +149,9 @@ async fn steps(
             v
         }
     };
-    jobs.stage(id, JobStage::Training, 0.3);
+    if !jobs.stage(id, JobStage::Training, 0.3) {
+        return Ok(None);
+    }
     let sp = spec.clone();
     let kept = validated.shapes.len();
     let model = on_blocking_pool("training", move || {
@@ -148,7 +160,9 @@ async fn steps(
             .map_err(|e| ApiError::invalid(format!("training failed: {e}")))
     })
     .await?;
-    jobs.stage(id, JobStage::Writing, 0.85);
+    if !jobs.stage(id, JobStage::Writing, 0.85) {
+        return Ok(None);
+    }
     let (sp, job_id) = (spec.clone(), id.to_string());
     let (version, _) = state
         .registry
@@ -166,7 +180,8 @@ async fn steps(
         .await?;
     jobs.update(id, |j| j.version = Some(version.clone()));
     if spec.activate {
-        jobs.stage(id, JobStage::Activating, 0.9);
+        // Not cancellable once writing: the stage always starts.
+        let _ = jobs.stage(id, JobStage::Activating, 0.9);
         state
             .registry
             .activate(&spec.model, &version)
@@ -182,7 +197,7 @@ async fn steps(
                 )
             })?;
     }
-    Ok(version)
+    Ok(Some(version))
 }
 
 fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
