@@ -1422,7 +1422,11 @@ async fn a_queued_job_can_be_cancelled() {
         );
     }
     assert!(!versions.join("4").exists(), "{}", server.logs());
-    assert!(server.logs().contains("retraining job cancelled"));
+    assert!(
+        server
+            .logs()
+            .contains("retraining job cancelled while queued")
+    );
 
     let cancel_http = |id: &str| format!("/v1/models/jobs/{id}:cancel");
     let (s, e) = post_admin(&c, &server, &cancel_http(&ids[2]), &json!({})).await;

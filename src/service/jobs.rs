@@ -132,6 +132,9 @@ struct Entry {
     finished: Option<Instant>,
     /// Wakes the job's task if it is waiting for the trainer when it is cancelled.
     cancel: Arc<Notify>,
+    /// Whether the job's task still runs: a job cancelled while training is finished in the
+    /// table at once, but its task ends (and frees the trainer) only after the current stage.
+    task: bool,
 }
 
 /// The job table and the trainer's queue.
@@ -243,6 +246,7 @@ impl Jobs {
                 job: job.clone(),
                 finished: None,
                 cancel: Arc::new(Notify::new()),
+                task: true,
             },
         );
         super::metrics::retrain_jobs_waiting(queued(&table));
@@ -364,13 +368,27 @@ impl Jobs {
         let _all = self.slots.acquire_many(all).await;
     }
 
-    /// The ids and states of the jobs not finished, oldest first.
+    /// The job's task has ended (whatever the job's state): see [`Jobs::unfinished`].
+    pub fn task_ended(&self, id: &str) {
+        if let Some(e) = self.table().get_mut(id) {
+            e.task = false;
+        }
+    }
+
+    /// The ids and states of the jobs whose task still runs, oldest first: queued, running,
+    /// and cancelled ones still finishing their stage (`cancelled, stopping`).
     pub fn unfinished(&self) -> Vec<(String, &'static str)> {
         let table = self.table();
         let mut left: Vec<_> = table
             .values()
-            .filter(|e| !e.job.state.is_finished())
-            .map(|e| (e.job.created.clone(), e.job.id.clone(), e.job.state.name()))
+            .filter(|e| e.task)
+            .map(|e| {
+                let state = match e.job.state {
+                    JobState::Cancelled => "cancelled, stopping",
+                    s => s.name(),
+                };
+                (e.job.created.clone(), e.job.id.clone(), state)
+            })
             .collect();
         left.sort();
         left.into_iter().map(|(_, id, state)| (id, state)).collect()
@@ -505,6 +523,14 @@ mod tests {
         let e = jobs.cancel(&writing.id).unwrap_err();
         assert!(e.message.contains("has already succeeded"), "{e}");
         assert_eq!(jobs.cancel("nope").unwrap_err().kind, ErrorKind::NotFound);
+        // The cancelled running job's task is still finishing its stage.
+        jobs.task_ended(&waiting.id);
+        jobs.task_ended(&writing.id);
+        assert_eq!(
+            jobs.unfinished(),
+            vec![(running.id.clone(), "cancelled, stopping")]
+        );
+        jobs.task_ended(&running.id);
         assert!(jobs.unfinished().is_empty());
         assert_eq!(queued(&jobs.table()), 0);
     }
@@ -529,7 +555,13 @@ mod tests {
         assert!(!waiter.is_finished(), "idle with a slot taken");
         jobs.succeed(&a.id);
         jobs.fail(&b.id, "no".into());
+        // Their tasks still run until they say they ended.
+        assert_eq!(jobs.unfinished().len(), 2);
+        jobs.task_ended(&a.id);
+        jobs.task_ended(&b.id);
         assert!(jobs.unfinished().is_empty());
+        // idle() waits for the slots, which the tasks hold until they end.
+        assert!(!waiter.is_finished(), "idle with a slot taken");
         drop(slot);
         tokio::time::timeout(Duration::from_secs(1), waiter)
             .await

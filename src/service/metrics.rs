@@ -15,7 +15,7 @@
 //! | `facepose_model_swaps_total` | counter | `name` |
 //! | `facepose_model_load_failures_total` | counter | `name` (the models folder entry) |
 //! | `facepose_model_sync_problems` | gauge | (models whose active version is not served here) |
-//! | `facepose_retrain_jobs_total` | counter | `outcome` (`succeeded`, `failed`) |
+//! | `facepose_retrain_jobs_total` | counter | `outcome` (`succeeded`, `failed`, `cancelled`) |
 //! | `facepose_retrain_jobs_waiting` | gauge | |
 //! | `facepose_ready` | gauge | |
 

@@ -15,7 +15,7 @@ use crate::model::validate::{
 use crate::model::{BasisSource, train_from_population};
 use crate::service::AppState;
 use crate::service::errors::ApiError;
-use crate::service::jobs::{Job, JobStage, Slot, now_rfc3339};
+use crate::service::jobs::{Job, JobStage, JobState, Slot, now_rfc3339};
 use crate::service::pose::on_blocking_pool;
 use crate::shape::Shape2;
 
@@ -47,7 +47,8 @@ pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result
     let (state, id) = (state.clone(), job.id.clone());
     tokio::spawn(
         async move {
-            run(state, id, Arc::new(spec), p.work).await;
+            run(state.clone(), id.clone(), Arc::new(spec), p.work).await;
+            state.jobs.task_ended(&id);
             drop(slot);
         }
         .instrument(span),
@@ -113,6 +114,14 @@ pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Wor
             state.jobs.succeed(&id);
         }
         Ok(None) => tracing::info!("retraining job cancelled"),
+        Err(e)
+            if state
+                .jobs
+                .get(&id)
+                .is_ok_and(|j| j.state == JobState::Cancelled) =>
+        {
+            tracing::info!(error = %e.message, "cancelled retraining job stopped on an error");
+        }
         Err(e) => {
             tracing::warn!(error = %e.message, "retraining job failed");
             state.jobs.fail(&id, e.message);
