@@ -4,7 +4,10 @@
 //! where `yᵢ = (uᵢ, -vᵢ)` are the landmarks in the y-up plane and `P` drops z:
 //! 1. closed-form start: the least-squares affine camera, projected onto the nearest scaled
 //!    orthographic one (polar decomposition), its third row the cross product of the first two;
-//! 2. Levenberg-Marquardt on `(ω, s, t)` with `R ← exp([ω]×) R`;
+//! 2. Levenberg-Marquardt on `(ω, s)` with `R ← exp([ω]×) R` and the translation kept optimal
+//!    (centroid onto centroid). The cost and its normal equations depend on the points only
+//!    through their weighted centred moments (`Σ w dx dxᵀ`, `Σ w dx dyᵀ`, `Σ w |dy|²`), so each
+//!    weighting costs one pass over the points and each iteration O(1);
 //! 3. robust: iteratively reweighted with Tukey's biweight on the residuals (scale from the
 //!    median absolute residual, floored at 1% of the face size), so one or two wild points stop
 //!    pulling;
@@ -13,7 +16,7 @@
 //!    2D-style annotations put on the visible outline instead of their 3D place), and the fit is
 //!    redone until the visible set settles. Visible contour points weigh `contour_weight`.
 
-use nalgebra::{Matrix2x3, Matrix3, Matrix6, Rotation3, Vector2, Vector3, Vector6};
+use nalgebra::{Matrix3, Matrix3x2, Matrix4, Rotation3, Vector2, Vector3, Vector4};
 
 use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
@@ -102,9 +105,10 @@ pub fn fit_rigid(
         }
     }
     let mut weights = base.clone();
-    let (mut r, mut s, mut t) = affine_start(model, &y, &weights)?;
-    let size = model_size(model, &weights);
-    (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
+    let moments = Moments::new(model, &y, &weights);
+    let (r0, s0) = affine_start(&moments)?;
+    let size = (moments.xx.trace() / moments.sw).sqrt();
+    let (mut r, mut s, mut t) = gauss_newton(&moments, r0, s0, opts.iterations);
 
     // HPR: drop the points hidden at the estimate, refit until the visible set settles.
     let mut hidden: Option<&[bool]> = None;
@@ -124,25 +128,35 @@ pub fn fit_rigid(
                 weights.clone_from(&base);
                 break;
             }
-            (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
+            (r, s, t) = gauss_newton(&Moments::new(model, &y, &weights), r, s, opts.iterations);
         }
     }
     // Robustness: Tukey reweighting, only when some residual stands out.
+    let mut res2 = Vec::with_capacity(n);
+    squared_residuals(model, &y, &r, s, &t, &mut res2);
     if opts.robust {
         let before = weights.clone();
+        let mut scratch = Vec::with_capacity(n);
         for _ in 0..2 {
             weights.clone_from(&before);
-            if !tukey_reweight(model, &y, &mut weights, &r, s, &t, 0.01 * s * size) {
+            if !tukey_weights(&res2, &mut weights, 0.01 * s * size, &mut scratch) {
                 break;
             }
             if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
                 weights.clone_from(&before);
                 break;
             }
-            (r, s, t) = gauss_newton(model, &y, &weights, r, s, t, opts.iterations);
+            (r, s, t) = gauss_newton(&Moments::new(model, &y, &weights), r, s, opts.iterations);
+            squared_residuals(model, &y, &r, s, &t, &mut res2);
         }
     }
-    let rms_px = weighted_rms(model, &y, &weights, &r, s, &t);
+    let sw: f64 = weights.iter().sum();
+    let sse: f64 = weights.iter().zip(&res2).map(|(w, e)| w * e).sum();
+    let rms_px = if sw > 0.0 {
+        (sse / sw).sqrt()
+    } else {
+        f64::NAN
+    };
     if !(rms_px.is_finite() && s.is_finite() && s > 0.0) {
         return Err(Error::Numerical("the rigid fit diverged".into()));
     }
@@ -173,41 +187,110 @@ pub(crate) fn model_size(model: &[Vector3<f64>], w: &[f64]) -> f64 {
         .sqrt()
 }
 
-fn affine_start(
-    model: &[Vector3<f64>],
-    y: &[Vector2<f64>],
-    w: &[f64],
-) -> Result<(Rotation3<f64>, f64, Vector2<f64>)> {
-    let sw: f64 = w.iter().sum();
-    let cx = model
-        .iter()
-        .zip(w)
-        .map(|(x, &w)| x * w)
-        .sum::<Vector3<f64>>()
-        / sw;
-    let cy = y.iter().zip(w).map(|(p, &w)| p * w).sum::<Vector2<f64>>() / sw;
-    let mut xx = Matrix3::zeros();
-    let mut yx = Matrix2x3::zeros();
-    let mut spread = 0.0;
-    for ((x, p), &wi) in model.iter().zip(y).zip(w) {
-        if wi > 0.0 {
-            let (dx, dp) = (x - cx, p - cy);
-            xx += wi * dx * dx.transpose();
-            yx += wi * dp * dx.transpose();
-            spread += wi * dp.norm_squared();
+/// Weighted, centred first and second moments of the model points and the landmarks: all the
+/// least-squares cost of a weak-perspective camera depends on, so that the iterations of a fit
+/// cost O(1) after one pass over the points.
+#[derive(Debug, Clone, Copy)]
+struct Moments {
+    /// Sum of the weights.
+    sw: f64,
+    /// Weighted centroids of the model points and of the landmarks.
+    cx: Vector3<f64>,
+    cy: Vector2<f64>,
+    /// `Σ w dx dxᵀ` of the centred model points.
+    xx: Matrix3<f64>,
+    /// `Σ w dx dyᵀ`, centred model points against centred landmarks.
+    xy: Matrix3x2<f64>,
+    /// `Σ w |dy|²` of the centred landmarks.
+    yy: f64,
+}
+
+impl Moments {
+    /// One pass over the points with a non-zero weight (two: the centroids first, so that
+    /// image coordinates far from the origin do not cancel away the spread).
+    fn new(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64]) -> Moments {
+        let (mut sw, mut sx, mut sy) = (0.0, Vector3::zeros(), Vector2::zeros());
+        for ((x, p), &wi) in model.iter().zip(y).zip(w) {
+            if wi > 0.0 {
+                sw += wi;
+                sx += wi * x;
+                sy += wi * p;
+            }
+        }
+        let (cx, cy) = (sx / sw, sy / sw);
+        let (mut xx, mut xy, mut yy) = (Matrix3::zeros(), Matrix3x2::zeros(), 0.0);
+        for ((x, p), &wi) in model.iter().zip(y).zip(w) {
+            if wi > 0.0 {
+                let (dx, dp) = (x - cx, p - cy);
+                let wdx = wi * dx;
+                xx += wdx * dx.transpose();
+                xy += wdx * dp.transpose();
+                yy += wi * dp.norm_squared();
+            }
+        }
+        Moments {
+            sw,
+            cx,
+            cy,
+            xx,
+            xy,
+            yy,
         }
     }
-    if !spread.is_finite() {
+
+    /// The translation that is optimal for `(r, s)`: centroid onto centroid.
+    fn translation(&self, r: &Rotation3<f64>, s: f64) -> Vector2<f64> {
+        self.cy - s * (r * self.cx).xy()
+    }
+
+    /// `Σ w |s (R x)ₓᵧ + t - y|²` at the optimal translation, the `JᵀJ` and `Jᵀr` of the
+    /// Gauss-Newton step in `(ω, s)` (the translation decouples once the points are centred),
+    /// from the moments alone.
+    ///
+    /// With `Q = R M Rᵀ` (`M` the model's second moment), `eₓ, e_y` the columns of `Σ w dx dyᵀ`
+    /// and `rᵢ` the rows of `R`: the cost is `Σw|dy|² - 2 s (r₁·eₓ + r₂·e_y) + s² (Q₁₁ + Q₂₂)`;
+    /// the Jacobian rows of a point, `(0, s q_z, -s q_y, q_x)` and `(-s q_z, 0, s q_x, q_y)` with
+    /// `q = R dx`, sum to the terms below.
+    fn normal_equations(&self, r: &Rotation3<f64>, s: f64) -> (f64, Matrix4<f64>, Vector4<f64>) {
+        let m = r.matrix();
+        let q = m * self.xx * m.transpose();
+        let e = m * self.xy; // row i: rᵢ·eₓ, rᵢ·e_y
+        let (q11, q22, q33) = (q[(0, 0)], q[(1, 1)], q[(2, 2)]);
+        let (q13, q23) = (q[(0, 2)], q[(1, 2)]);
+        let fit = e[(0, 0)] + e[(1, 1)];
+        let cost = self.yy - 2.0 * s * fit + s * s * (q11 + q22);
+        let s2 = s * s;
+        #[rustfmt::skip]
+        let jtj = Matrix4::new(
+            s2 * q33,  0.0,       -s2 * q13,         -s * q23,
+            0.0,       s2 * q33,  -s2 * q23,         s * q13,
+            -s2 * q13, -s2 * q23, s2 * (q11 + q22),  0.0,
+            -s * q23,  s * q13,   0.0,               q11 + q22,
+        );
+        let g = Vector4::new(
+            s * e[(2, 1)] - s2 * q23,
+            s2 * q13 - s * e[(2, 0)],
+            s * (e[(1, 0)] - e[(0, 1)]),
+            s * (q11 + q22) - fit,
+        );
+        (cost, jtj, g)
+    }
+}
+
+/// The closed-form start: the rotation and scale of the nearest scaled orthographic camera to
+/// the least-squares affine one.
+fn affine_start(m: &Moments) -> Result<(Rotation3<f64>, f64)> {
+    if !m.yy.is_finite() {
         return Err(Error::non_finite("landmarks"));
     }
-    let inv = xx
-        .try_inverse()
-        .ok_or_else(|| Error::Degenerate("the model points in use are coplanar".into()))?;
-    let a = yx * inv;
+    let inv =
+        m.xx.try_inverse()
+            .ok_or_else(|| Error::Degenerate("the model points in use are coplanar".into()))?;
+    let a = m.xy.transpose() * inv;
     // Polar decomposition of the 2x3 camera: A = S^½ [r1; r2] with S = A Aᵀ (2x2), in closed form.
-    let m = a * a.transpose();
-    let (tr, det) = (m.trace(), m.determinant());
-    if spread <= 1e-18 || det.is_nan() || det <= 1e-18 * tr * tr {
+    let aat = a * a.transpose();
+    let (tr, det) = (aat.trace(), aat.determinant());
+    if m.yy <= 1e-18 || det.is_nan() || det <= 1e-18 * tr * tr {
         return Err(Error::Degenerate(
             "the landmarks are all at one place or on one line".into(),
         ));
@@ -215,128 +298,63 @@ fn affine_start(
     let sq = det.sqrt();
     let root_sum = (tr + 2.0 * sq).sqrt(); // σ1 + σ2
     // (S^½)⁻¹ = (S + √det I)⁻¹ · (σ1 + σ2).
-    let inv_sqrt = (m + nalgebra::Matrix2::identity() * sq)
+    let inv_sqrt = (aat + nalgebra::Matrix2::identity() * sq)
         .try_inverse()
         .ok_or_else(|| Error::Numerical("polar decomposition failed".into()))?
         * root_sum;
     let rows = inv_sqrt * a;
     let rot = rotation_from_two_rows(&rows.row(0).transpose(), &rows.row(1).transpose());
-    let s = 0.5 * root_sum;
-    let t = cy - s * (rot * cx).xy();
-    Ok((rot, s, t))
+    Ok((rot, 0.5 * root_sum))
 }
 
-/// Cost, `JᵀWJ` and `JᵀWr` at `(r, s, t)` in one pass over the points.
-///
-/// With `q = R X`, `a = s q_z`, `b = s q_y`, `c = s q_x`, the two Jacobian rows of a point are
-/// `jx = (0, a, -b, q_x, 1, 0)` and `jy = (-a, 0, c, q_y, 0, 1)` (rotation `ω`, then `s`, `t`);
-/// their sparsity leaves 14 distinct sums, accumulated directly.
-fn normal_equations(
-    model: &[Vector3<f64>],
-    y: &[Vector2<f64>],
-    w: &[f64],
-    r: &Rotation3<f64>,
-    s: f64,
-    t: &Vector2<f64>,
-) -> (f64, Matrix6<f64>, Vector6<f64>) {
-    let m = r.matrix();
-    let (mut cost, mut aa, mut ac, mut aqy, mut sa, mut ab, mut aqx, mut bbcc) =
-        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    let (mut cross, mut sb, mut sc, mut qq, mut sqx, mut sqy, mut sw) =
-        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    let mut g = [0.0; 6];
-    for ((x, p), &wi) in model.iter().zip(y).zip(w) {
-        if wi == 0.0 {
-            continue;
-        }
-        let qx = m[(0, 0)] * x.x + m[(0, 1)] * x.y + m[(0, 2)] * x.z;
-        let qy = m[(1, 0)] * x.x + m[(1, 1)] * x.y + m[(1, 2)] * x.z;
-        let qz = m[(2, 0)] * x.x + m[(2, 1)] * x.y + m[(2, 2)] * x.z;
-        let (rx, ry) = (s * qx + t.x - p.x, s * qy + t.y - p.y);
-        let (a, b, c) = (s * qz, s * qy, s * qx);
-        cost += wi * (rx * rx + ry * ry);
-        aa += wi * a * a;
-        ac += wi * a * c;
-        aqy += wi * a * qy;
-        sa += wi * a;
-        ab += wi * a * b;
-        aqx += wi * a * qx;
-        bbcc += wi * (b * b + c * c);
-        cross += wi * (c * qy - b * qx);
-        sb += wi * b;
-        sc += wi * c;
-        qq += wi * (qx * qx + qy * qy);
-        sqx += wi * qx;
-        sqy += wi * qy;
-        sw += wi;
-        g[0] -= wi * a * ry;
-        g[1] += wi * a * rx;
-        g[2] += wi * (c * ry - b * rx);
-        g[3] += wi * (qx * rx + qy * ry);
-        g[4] += wi * rx;
-        g[5] += wi * ry;
-    }
-    #[rustfmt::skip]
-    let jtj = Matrix6::new(
-        aa,   0.0,  -ac,   -aqy,  0.0, -sa,
-        0.0,  aa,   -ab,   aqx,   sa,  0.0,
-        -ac,  -ab,  bbcc,  cross, -sb, sc,
-        -aqy, aqx,  cross, qq,    sqx, sqy,
-        0.0,  sa,   -sb,   sqx,   sw,  0.0,
-        -sa,  0.0,  sc,    sqy,   0.0, sw,
-    );
-    (cost, jtj, Vector6::from(g))
-}
-
-/// Gauss-Newton on `(ω, s, t)` with `R ← exp([ω]×) R`, damped (Levenberg-Marquardt) only after a
-/// step that raised the cost, which is then undone; stops when the step is negligible. Each
-/// iteration is one pass over the points.
-#[allow(clippy::too_many_arguments)]
+/// Gauss-Newton on `(ω, s)` with `R ← exp([ω]×) R` and the translation kept optimal, damped
+/// (Levenberg-Marquardt) only after a step that raised the cost, which is then undone; stops
+/// when the step is negligible. The iterations work on the moments: O(1) each.
 fn gauss_newton(
-    model: &[Vector3<f64>],
-    y: &[Vector2<f64>],
-    w: &[f64],
+    m: &Moments,
     mut r: Rotation3<f64>,
     mut s: f64,
-    mut t: Vector2<f64>,
     iterations: usize,
 ) -> (Rotation3<f64>, f64, Vector2<f64>) {
+    // The cost comes from sums of the size of `Σ w |dy|²` that cancel at the optimum: a change
+    // below their rounding is no change.
+    let tol = 1e-12 * m.yy;
     let mut lambda = 0.0;
-    let mut best = (r, s, t);
-    let (mut best_cost, mut jtj, mut jtr) = normal_equations(model, y, w, &r, s, &t);
+    let mut best = (r, s);
+    let (mut best_cost, mut jtj, mut jtr) = m.normal_equations(&r, s);
     for _ in 0..3 * iterations {
         let mut a = jtj;
-        for k in 0..6 {
+        for k in 0..4 {
             a[(k, k)] *= 1.0 + lambda;
         }
         let Some(delta) = a.cholesky().map(|c| c.solve(&(-jtr))) else {
             lambda = (lambda * 10.0).max(1e-6);
             continue;
         };
-        let (br, bs, bt) = best;
+        let (br, bs) = best;
         r = Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])) * br;
         s = bs + delta[3];
-        t = bt + Vector2::new(delta[4], delta[5]);
-        if delta.fixed_rows::<3>(0).norm() < 1e-7
-            && delta[3].abs() < 1e-7 * bs
-            && delta[4].hypot(delta[5]) < 1e-5 * bs
-        {
+        if delta.fixed_rows::<3>(0).norm() < 1e-8 && delta[3].abs() < 1e-8 * bs {
+            if s > 0.0 {
+                best = (r, s);
+            }
             break;
         }
         if s <= 0.0 {
             lambda = (lambda * 10.0).max(1e-6);
             continue;
         }
-        let (cost, j, g) = normal_equations(model, y, w, &r, s, &t);
-        if cost <= best_cost {
-            (best, best_cost, jtj, jtr) = ((r, s, t), cost, j, g);
+        let (cost, j, g) = m.normal_equations(&r, s);
+        if cost <= best_cost + tol {
+            (best, best_cost, jtj, jtr) = ((r, s), cost.min(best_cost), j, g);
             lambda *= 0.1;
         } else {
             lambda = (lambda * 10.0).max(1e-6);
         }
     }
-    let (r, s, t) = best;
-    (r.renormalize_copy(), s, t)
+    let (r, s) = best;
+    let r = r.renormalize_copy();
+    (r, s, m.translation(&r, s))
 }
 
 trait Renormalize {
@@ -350,36 +368,22 @@ impl Renormalize for Rotation3<f64> {
     }
 }
 
-fn weighted_cost(
+/// `|s (R xᵢ)ₓᵧ + t - yᵢ|²` for every point, into `out`.
+fn squared_residuals(
     model: &[Vector3<f64>],
     y: &[Vector2<f64>],
-    w: &[f64],
     r: &Rotation3<f64>,
     s: f64,
     t: &Vector2<f64>,
-) -> f64 {
-    model
-        .iter()
-        .zip(y)
-        .zip(w)
-        .filter(|(_, w)| **w > 0.0)
-        .map(|((x, p), &wi)| wi * (s * (r * x).xy() + t - p).norm_squared())
-        .sum()
-}
-
-fn weighted_rms(
-    model: &[Vector3<f64>],
-    y: &[Vector2<f64>],
-    w: &[f64],
-    r: &Rotation3<f64>,
-    s: f64,
-    t: &Vector2<f64>,
-) -> f64 {
-    let sw: f64 = w.iter().sum();
-    if sw <= 0.0 {
-        return f64::NAN;
-    }
-    (weighted_cost(model, y, w, r, s, t) / sw).sqrt()
+    out: &mut Vec<f64>,
+) {
+    out.clear();
+    out.extend(
+        model
+            .iter()
+            .zip(y)
+            .map(|(x, p)| (s * (r * x).xy() + t - p).norm_squared()),
+    );
 }
 
 /// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored). Leaves the
@@ -393,31 +397,36 @@ pub(crate) fn tukey_reweight(
     t: &Vector2<f64>,
     floor: f64,
 ) -> bool {
-    let res: Vec<f64> = model
-        .iter()
-        .zip(y)
-        .map(|(x, p)| (s * (r * x).xy() + t - p).norm())
-        .collect();
-    let mut active: Vec<f64> = res
-        .iter()
-        .zip(w.iter())
-        .filter(|(_, w)| **w > 0.0)
-        .map(|(e, _)| *e)
-        .collect();
-    if active.len() < 4 {
+    let mut res2 = Vec::with_capacity(model.len());
+    squared_residuals(model, y, r, s, t, &mut res2);
+    tukey_weights(&res2, w, floor, &mut Vec::with_capacity(model.len()))
+}
+
+/// [`tukey_reweight`] on squared residuals already computed (`scratch` holds the ones in use
+/// for the median). Works on squares throughout: one square root, for the median.
+fn tukey_weights(res2: &[f64], w: &mut [f64], floor: f64, scratch: &mut Vec<f64>) -> bool {
+    scratch.clear();
+    scratch.extend(
+        res2.iter()
+            .zip(w.iter())
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(e, _)| *e),
+    );
+    if scratch.len() < 4 {
         return false;
     }
-    let mid = active.len() / 2;
-    let median = *active.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mid = scratch.len() / 2;
+    let median = scratch.select_nth_unstable_by(mid, f64::total_cmp).1.sqrt();
     let sigma = (1.4826 * median).max(floor);
-    if active.iter().all(|&e| e <= 2.5 * sigma) {
+    let limit = (2.5 * sigma).powi(2);
+    if scratch.iter().all(|&e| e <= limit) {
         return false;
     }
-    let c = 4.685 * sigma;
-    for (wi, e) in w.iter_mut().zip(&res) {
+    let c2 = (4.685 * sigma).powi(2);
+    for (wi, e) in w.iter_mut().zip(res2) {
         if *wi > 0.0 {
-            let u = e / c;
-            *wi *= if u >= 1.0 { 0.0 } else { (1.0 - u * u).powi(2) };
+            let u2 = e / c2;
+            *wi *= if u2 >= 1.0 { 0.0 } else { (1.0 - u2).powi(2) };
         }
     }
     true
@@ -433,6 +442,24 @@ mod tests {
         crate::test_faces::face(10)
     }
 
+    /// The cost summed point by point, against which the moments are checked.
+    fn weighted_cost(
+        model: &[Vector3<f64>],
+        y: &[Vector2<f64>],
+        w: &[f64],
+        r: &Rotation3<f64>,
+        s: f64,
+        t: &Vector2<f64>,
+    ) -> f64 {
+        model
+            .iter()
+            .zip(y)
+            .zip(w)
+            .filter(|(_, w)| **w > 0.0)
+            .map(|((x, p), &wi)| wi * (s * (r * x).xy() + t - p).norm_squared())
+            .sum()
+    }
+
     fn project(shape: &[Vector3<f64>], a: EulerAngles, s: f64) -> Shape2 {
         let cam = WeakPerspective::new(a.to_rotation(), s, Vector2::new(200.0, -220.0)).unwrap();
         Shape2::full(shape.iter().map(|x| cam.project(x)).collect()).unwrap()
@@ -446,6 +473,52 @@ mod tests {
             prop_assert!(geodesic_deg(&fit.rotation, &a.to_rotation()) < 1e-6);
             prop_assert!((fit.scale - s).abs() < 1e-8 * s);
             prop_assert!(fit.rms_px < 1e-6);
+        }
+    }
+
+    /// The cost from the moments is the direct sum over the points at the optimal translation,
+    /// and the gradient (`Jᵀr`) matches central differences of that direct sum in `(ω, s)`.
+    #[test]
+    fn moment_cost_and_gradient_match_the_direct_sums() {
+        let model = face();
+        let a = EulerAngles::new(35.0, -20.0, 10.0).unwrap();
+        let lm = project(&model, a, 2.0);
+        let y: Vec<Vector2<f64>> = lm
+            .points()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| image_to_plane(p) + Vector2::new((i % 3) as f64, -((i % 5) as f64)))
+            .collect();
+        let w: Vec<f64> = (0..model.len()).map(|i| 0.5 + (i % 4) as f64).collect();
+        let m = Moments::new(&model, &y, &w);
+        let r0 = EulerAngles::new(30.0, -15.0, 4.0).unwrap().to_rotation();
+        let direct = |dw: Vector3<f64>, s: f64| {
+            let r = Rotation3::new(dw) * r0;
+            let t = m.translation(&r, s);
+            weighted_cost(&model, &y, &w, &r, s, &t)
+        };
+        let s0 = 1.7;
+        let (cost, _, g) = m.normal_equations(&r0, s0);
+        let want = direct(Vector3::zeros(), s0);
+        assert!((cost - want).abs() < 1e-9 * want, "{cost} vs {want}");
+        let h = 1e-6;
+        for k in 0..4 {
+            let (mut dp, mut dm) = (Vector3::zeros(), Vector3::zeros());
+            let (mut sp, mut sm) = (s0, s0);
+            if k < 3 {
+                dp[k] = h;
+                dm[k] = -h;
+            } else {
+                sp += h;
+                sm -= h;
+            }
+            // d(cost)/dθ = 2 Jᵀr.
+            let numeric = (direct(dp, sp) - direct(dm, sm)) / (2.0 * h) / 2.0;
+            assert!(
+                (numeric - g[k]).abs() < 1e-5 * want.sqrt().max(1.0),
+                "component {k}: {numeric} vs {}",
+                g[k]
+            );
         }
     }
 
