@@ -386,7 +386,13 @@ fn joint_cost(
 }
 
 /// `JᵀWJ` and `JᵀWr` of the joint problem at `st` (unknowns: rotation increment ω, scale,
-/// translation, coefficients).
+/// translation, coefficients), in fused passes without per-point matrices.
+///
+/// A point's pose Jacobian rows are those of the rigid fit, `(0, a, -b, q_x, 1, 0)` and
+/// `(-a, 0, c, q_y, 0, 1)` with `q = R Xᵢ`, `(a, b, c) = s (q_z, q_y, q_x)`; its coefficient
+/// rows are `uᵢ = s (R Bᵢ)ₓ` and `vᵢ = s (R Bᵢ)ᵧ`. The pose block sums 14 distinct products;
+/// the cross block and the coefficient gradient take one pass over the basis, forming `u` and
+/// `v` as they go; the coefficient block comes from the basis moments when most weights are one.
 fn normal_equations(
     model: &MorphableBasis,
     y: &[Vector2<f64>],
@@ -397,75 +403,162 @@ fn normal_equations(
     let n = y.len();
     let k = model.components.len();
     let m = st.r.matrix();
-    // Per point: the pose Jacobian rows (as in the rigid fit), plain and weighted, and the
-    // weighted residuals.
-    let mut px = DMatrix::<f64>::zeros(n, 6);
-    let mut py = DMatrix::<f64>::zeros(n, 6);
-    let mut rx = DVector::<f64>::zeros(n);
-    let mut ry = DVector::<f64>::zeros(n);
-    for i in 0..n {
+    let s = st.s;
+    // Per point, weighted: a, b, c, q_x, q_y and the residuals.
+    let mut pt = vec![[0.0f64; 8]; n];
+    let mut pose = [0.0f64; 14];
+    let mut gp = [0.0f64; 6];
+    for (i, p) in pt.iter_mut().enumerate() {
         let wi = w[i];
         if wi == 0.0 {
             continue;
         }
         let q = m * st.shape[i];
-        let (a, b, c) = (st.s * q.z, st.s * q.y, st.s * q.x);
-        let row_x = [0.0, a, -b, q.x, 1.0, 0.0];
-        let row_y = [-a, 0.0, c, q.y, 0.0, 1.0];
-        for j in 0..6 {
-            px[(i, j)] = row_x[j];
-            py[(i, j)] = row_y[j];
+        let (a, b, c) = (s * q.z, s * q.y, s * q.x);
+        let rx = s * q.x + st.t.x - y[i].x;
+        let ry = s * q.y + st.t.y - y[i].y;
+        *p = [
+            wi * a,
+            wi * b,
+            wi * c,
+            wi * q.x,
+            wi * q.y,
+            wi * rx,
+            wi * ry,
+            wi,
+        ];
+        let [wa, wb, wc, wqx, wqy, wrx, wry, _] = *p;
+        for (acc, v) in pose.iter_mut().zip([
+            wa * a,
+            wa * c,
+            wa * q.y,
+            wa,
+            wa * b,
+            wa * q.x,
+            wb * b + wc * c,
+            wc * q.y - wb * q.x,
+            wb,
+            wc,
+            wqx * q.x + wqy * q.y,
+            wqx,
+            wqy,
+            wi,
+        ]) {
+            *acc += v;
         }
-        rx[i] = wi * (st.s * q.x + st.t.x - y[i].x);
-        ry[i] = wi * (st.s * q.y + st.t.y - y[i].y);
+        gp[0] -= a * wry;
+        gp[1] += a * wrx;
+        gp[2] += c * wry - b * wrx;
+        gp[3] += q.x * wrx + q.y * wry;
+        gp[4] += wrx;
+        gp[5] += wry;
     }
-    let weigh = |mtx: &DMatrix<f64>| {
-        let mut out = mtx.clone();
-        for (i, &wi) in w.iter().enumerate() {
-            out.row_mut(i).scale_mut(wi);
-        }
-        out
-    };
-    let (jx, jy) = (weigh(&px), weigh(&py));
-    // Coefficient Jacobian rows: u = s (R B)ₓ, v = s (R B)ᵧ (n x K each).
-    let rotated = |row: usize| {
-        let mut out = &model.axes[0] * (st.s * m[(row, 0)]);
-        add_scaled(&mut out, st.s * m[(row, 1)], &model.axes[1]);
-        add_scaled(&mut out, st.s * m[(row, 2)], &model.axes[2]);
-        out
-    };
-    let (u, v) = (rotated(0), rotated(1));
-
+    let [
+        aa,
+        ac,
+        aqy,
+        sa,
+        ab,
+        aqx,
+        bbcc,
+        cross,
+        sb,
+        sc,
+        qq,
+        sqx,
+        sqy,
+        sw,
+    ] = pose;
     let d = 6 + k;
     let mut jtj = DMatrix::<f64>::zeros(d, d);
     let mut jtr = DVector::<f64>::zeros(d);
-    // Pose block and gradient.
-    let pose = jx.tr_mul(&px) + jy.tr_mul(&py);
-    jtj.view_mut((0, 0), (6, 6)).copy_from(&pose);
-    let gp = px.tr_mul(&rx) + py.tr_mul(&ry);
-    jtr.rows_mut(0, 6).copy_from(&gp);
-    // Cross block: Σ wᵢ (uᵢ jxᵢᵀ + vᵢ jyᵢᵀ) = uᵀ (W jx) + vᵀ (W jy).
-    let cross = u.tr_mul(&jx) + v.tr_mul(&jy);
-    jtj.view_mut((6, 0), (k, 6)).copy_from(&cross);
-    jtj.view_mut((0, 6), (6, k)).copy_from(&cross.transpose());
+    #[rustfmt::skip]
+    let pose_block = [
+        [aa,   0.0,  -ac,   -aqy,  0.0, -sa],
+        [0.0,  aa,   -ab,   aqx,   sa,  0.0],
+        [-ac,  -ab,  bbcc,  cross, -sb, sc],
+        [-aqy, aqx,  cross, qq,    sqx, sqy],
+        [0.0,  sa,   -sb,   sqx,   sw,  0.0],
+        [-sa,  0.0,  sc,    sqy,   0.0, sw],
+    ];
+    for (r, row) in pose_block.iter().enumerate() {
+        for (c, &v) in row.iter().enumerate() {
+            jtj[(r, c)] = v;
+        }
+        jtr[r] = gp[r];
+    }
+    // Cross block and coefficient gradient, one pass over each basis shape.
+    let (sx, sy) = (
+        [s * m[(0, 0)], s * m[(0, 1)], s * m[(0, 2)]],
+        [s * m[(1, 0)], s * m[(1, 1)], s * m[(1, 2)]],
+    );
+    let (ax, ay, az) = (
+        model.axes[0].as_slice(),
+        model.axes[1].as_slice(),
+        model.axes[2].as_slice(),
+    );
+    for kk in 0..k {
+        // Column `kk` of each axis matrix (column-major): basis shape `kk` at every point.
+        let col = kk * n..(kk + 1) * n;
+        let mut acc = [0.0f64; 7];
+        // Points of weight zero have all-zero rows in `pt` and add nothing.
+        for (((p, &x), &yy), &z) in pt
+            .iter()
+            .zip(&ax[col.clone()])
+            .zip(&ay[col.clone()])
+            .zip(&az[col])
+        {
+            let u = sx[0] * x + sx[1] * yy + sx[2] * z;
+            let v = sy[0] * x + sy[1] * yy + sy[2] * z;
+            let [wa, wb, wc, wqx, wqy, wrx, wry, wi] = *p;
+            acc[0] -= v * wa;
+            acc[1] += u * wa;
+            acc[2] += v * wc - u * wb;
+            acc[3] += u * wqx + v * wqy;
+            acc[4] += u * wi;
+            acc[5] += v * wi;
+            acc[6] += u * wrx + v * wry;
+        }
+        for j in 0..6 {
+            jtj[(6 + kk, j)] = acc[j];
+            jtj[(j, 6 + kk)] = acc[j];
+        }
+        jtr[6 + kk] = acc[6] + prior_w * (st.c[kk] - model.prior_mean[kk]);
+    }
     // Coefficient block `s² Σ wᵢ Bᵢᵀ (I - r₃r₃ᵀ) Bᵢ = uᵀWu + vᵀWv`: from the moments when most
     // weights are one (a correction per other point costs about a third of a direct row), else
     // directly (after robust reweighting no weight is one); then the prior.
     let reweighted = w.iter().filter(|&&wi| wi != 1.0).count();
     let mut cc = if 3 * reweighted > 2 * n {
+        let rotated = |r: [f64; 3]| {
+            let mut out = DMatrix::<f64>::zeros(n, k);
+            for (((o, x), yy), z) in out
+                .iter_mut()
+                .zip(model.axes[0].iter())
+                .zip(model.axes[1].iter())
+                .zip(model.axes[2].iter())
+            {
+                *o = r[0] * x + r[1] * yy + r[2] * z;
+            }
+            out
+        };
+        let (u, v) = (rotated(sx), rotated(sy));
+        let weigh = |mtx: &DMatrix<f64>| {
+            let mut out = mtx.clone();
+            for (i, &wi) in w.iter().enumerate() {
+                out.row_mut(i).scale_mut(wi);
+            }
+            out
+        };
         u.tr_mul(&weigh(&u)) + v.tr_mul(&weigh(&v))
     } else {
         let r3 = Vector3::new(m[(2, 0)], m[(2, 1)], m[(2, 2)]);
-        model.coefficient_block(&r3, w) * (st.s * st.s)
+        model.coefficient_block(&r3, w) * (s * s)
     };
     for kk in 0..k {
         cc[(kk, kk)] += prior_w;
     }
     jtj.view_mut((6, 6), (k, k)).copy_from(&cc);
-    let gc = u.tr_mul(&rx) + v.tr_mul(&ry);
-    for kk in 0..k {
-        jtr[6 + kk] = gc[kk] + prior_w * (st.c[kk] - model.prior_mean[kk]);
-    }
     (jtj, jtr)
 }
 
@@ -522,6 +615,123 @@ mod tests {
                     .sum();
                 assert!((fast[(p, q)] - direct).abs() < 1e-9, "{p} {q}");
             }
+        }
+    }
+
+    /// The normal equations from the explicit Jacobian (per-point rows as matrices): the
+    /// reference the fused passes are checked against.
+    fn dense_normal_equations(
+        model: &MorphableBasis,
+        y: &[Vector2<f64>],
+        w: &[f64],
+        st: &Joint,
+        prior_w: f64,
+    ) -> (DMatrix<f64>, DVector<f64>) {
+        let n = y.len();
+        let k = model.components.len();
+        let m = st.r.matrix();
+        // Per point: the pose Jacobian rows (as in the rigid fit), plain and weighted, and the
+        // weighted residuals.
+        let mut px = DMatrix::<f64>::zeros(n, 6);
+        let mut py = DMatrix::<f64>::zeros(n, 6);
+        let mut rx = DVector::<f64>::zeros(n);
+        let mut ry = DVector::<f64>::zeros(n);
+        for i in 0..n {
+            let wi = w[i];
+            if wi == 0.0 {
+                continue;
+            }
+            let q = m * st.shape[i];
+            let (a, b, c) = (st.s * q.z, st.s * q.y, st.s * q.x);
+            let row_x = [0.0, a, -b, q.x, 1.0, 0.0];
+            let row_y = [-a, 0.0, c, q.y, 0.0, 1.0];
+            for j in 0..6 {
+                px[(i, j)] = row_x[j];
+                py[(i, j)] = row_y[j];
+            }
+            rx[i] = wi * (st.s * q.x + st.t.x - y[i].x);
+            ry[i] = wi * (st.s * q.y + st.t.y - y[i].y);
+        }
+        let weigh = |mtx: &DMatrix<f64>| {
+            let mut out = mtx.clone();
+            for (i, &wi) in w.iter().enumerate() {
+                out.row_mut(i).scale_mut(wi);
+            }
+            out
+        };
+        let (jx, jy) = (weigh(&px), weigh(&py));
+        // Coefficient Jacobian rows: u = s (R B)ₓ, v = s (R B)ᵧ (n x K each).
+        let rotated = |row: usize| {
+            let mut out = &model.axes[0] * (st.s * m[(row, 0)]);
+            add_scaled(&mut out, st.s * m[(row, 1)], &model.axes[1]);
+            add_scaled(&mut out, st.s * m[(row, 2)], &model.axes[2]);
+            out
+        };
+        let (u, v) = (rotated(0), rotated(1));
+
+        let d = 6 + k;
+        let mut jtj = DMatrix::<f64>::zeros(d, d);
+        let mut jtr = DVector::<f64>::zeros(d);
+        // Pose block and gradient.
+        let pose = jx.tr_mul(&px) + jy.tr_mul(&py);
+        jtj.view_mut((0, 0), (6, 6)).copy_from(&pose);
+        let gp = px.tr_mul(&rx) + py.tr_mul(&ry);
+        jtr.rows_mut(0, 6).copy_from(&gp);
+        // Cross block: Σ wᵢ (uᵢ jxᵢᵀ + vᵢ jyᵢᵀ) = uᵀ (W jx) + vᵀ (W jy).
+        let cross = u.tr_mul(&jx) + v.tr_mul(&jy);
+        jtj.view_mut((6, 0), (k, 6)).copy_from(&cross);
+        jtj.view_mut((0, 6), (6, k)).copy_from(&cross.transpose());
+        // Coefficient block `s² Σ wᵢ Bᵢᵀ (I - r₃r₃ᵀ) Bᵢ = uᵀWu + vᵀWv`: from the moments when most
+        // weights are one (a correction per other point costs about a third of a direct row), else
+        // directly (after robust reweighting no weight is one); then the prior.
+        let reweighted = w.iter().filter(|&&wi| wi != 1.0).count();
+        let mut cc = if 3 * reweighted > 2 * n {
+            u.tr_mul(&weigh(&u)) + v.tr_mul(&weigh(&v))
+        } else {
+            let r3 = Vector3::new(m[(2, 0)], m[(2, 1)], m[(2, 2)]);
+            model.coefficient_block(&r3, w) * (st.s * st.s)
+        };
+        for kk in 0..k {
+            cc[(kk, kk)] += prior_w;
+        }
+        jtj.view_mut((6, 6), (k, k)).copy_from(&cc);
+        let gc = u.tr_mul(&rx) + v.tr_mul(&ry);
+        for kk in 0..k {
+            jtr[6 + kk] = gc[kk] + prior_w * (st.c[kk] - model.prior_mean[kk]);
+        }
+        (jtj, jtr)
+    }
+
+    /// The fused passes give the normal equations of the explicit Jacobian, with weights one
+    /// (the moments path) and other weights (the direct path), away from convergence.
+    #[test]
+    fn fused_normal_equations_match_the_explicit_jacobian() {
+        let b = basis();
+        let r = EulerAngles::new(-35.0, 12.0, 7.0).unwrap().to_rotation();
+        let c = [0.4, -0.7];
+        let st = Joint {
+            r,
+            s: 1.3,
+            t: Vector2::new(5.0, -8.0),
+            c: DVector::from_column_slice(&c),
+            shape: b.shape(&c),
+        };
+        let y: Vec<Vector2<f64>> = (0..10)
+            .map(|i| Vector2::new(3.0 * i as f64, -2.0 * (i % 4) as f64))
+            .collect();
+        let ones = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.5, 1.0];
+        let other = [0.9, 0.5, 0.0, 0.7, 0.8, 0.25, 0.6, 0.95, 0.3, 0.0];
+        for w in [ones, other] {
+            let (jtj, jtr) = normal_equations(&b, &y, &w, &st, 0.8);
+            let (want, want_r) = dense_normal_equations(&b, &y, &w, &st, 0.8);
+            assert!(
+                (&jtj - &want).norm() < 1e-9 * want.norm(),
+                "{jtj} vs {want}"
+            );
+            assert!(
+                (&jtr - &want_r).norm() < 1e-9 * want_r.norm(),
+                "{jtr} vs {want_r}"
+            );
         }
     }
 
