@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Instructions per call of the per-face work (examples/instructions.rs) under callgrind: a
+# measure that does not move with the machine's load, unlike criterion's times.
+#
+#   scripts/instructions.sh            # every entry, 1000 calls each
+#   CALLS=200 scripts/instructions.sh fit fit-shape
+#
+# Installs valgrind if missing. Each count is (total of CALLS calls - total of no call) / CALLS,
+# so the model loading at start is left out. Not part of CI.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+CALLS=${CALLS:-1000}
+ENTRIES=("$@")
+[ ${#ENTRIES[@]} -eq 0 ] && ENTRIES=(fit fit-shape estimate-fit estimate-auto estimate-regression parse-pose-body estimate-face-fit)
+if ! command -v valgrind >/dev/null 2>&1; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
+    $SUDO apt-get install -y valgrind >/dev/null 2>&1 ||
+        { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y valgrind >/dev/null; }
+fi
+cargo build --release --locked --example instructions 2>&1 | tail -1
+BIN=target/release/examples/instructions
+OUT=$(mktemp)
+trap 'rm -f "$OUT"' EXIT
+count() {
+    valgrind --tool=callgrind --callgrind-out-file="$OUT" "$BIN" "$1" "$2" 2>&1 |
+        awk '/Collected/ {print $4}'
+}
+BASE=$(count none 0)
+printf '| entry | instructions per call |\n|---|---|\n'
+for e in "${ENTRIES[@]}"; do
+    total=$(count "$e" "$CALLS")
+    printf '| `%s` | %s |\n' "$e" "$(( (total - BASE) / CALLS ))"
+done
