@@ -11,6 +11,7 @@ pub mod eval;
 pub mod geometry;
 pub mod hpr;
 pub mod model;
+pub mod parallel;
 pub mod record;
 pub mod service;
 pub mod sfm;

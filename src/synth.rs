@@ -153,7 +153,9 @@ impl SyntheticView {
 }
 
 /// Synthesizes views of a frontal 3D shape over a grid, lazily (memory stays flat in the grid
-/// size). `hpr` must have been built on the same shape.
+/// size). `hpr` must have been built on the same shape. A clone has its own work space, for
+/// another thread.
+#[derive(Clone)]
 pub struct ViewSynthesizer<'a> {
     shape: &'a [Vector3<f64>],
     hpr: &'a PaperHpr,

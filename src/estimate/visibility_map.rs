@@ -11,6 +11,7 @@ use nalgebra::{Rotation3, Vector3};
 use crate::error::{Error, Result};
 use crate::geometry::EulerAngles;
 use crate::hpr::{HprScratch, PaperHpr};
+use crate::parallel;
 use crate::synth::AngleRange;
 
 /// Visibility bitmaps over a yaw x pitch grid (roll 0).
@@ -24,7 +25,7 @@ pub struct VisibilityMap {
 }
 
 impl VisibilityMap {
-    /// Runs HPR over the grid for `shape` (frontal, model frame).
+    /// Runs HPR over the grid for `shape` (frontal, model frame), on the machine's cores.
     pub fn build(
         shape: &[Vector3<f64>],
         hpr: &PaperHpr,
@@ -39,19 +40,24 @@ impl VisibilityMap {
                 got: hpr.triangulation().n_points(),
             });
         }
-        let mut bits = Vec::with_capacity(yaw.len() * pitch.len() * n);
-        let mut scratch = HprScratch::default();
-        let mut rotated = vec![Vector3::zeros(); n];
-        let mut out = vec![false; n];
-        for y in yaw.values() {
-            for p in pitch.values() {
-                let r = EulerAngles::new(y, p, 0.0)?.to_rotation();
-                for (dst, x) in rotated.iter_mut().zip(shape) {
-                    *dst = r * x;
-                }
-                hpr.visibility_into(&rotated, &mut scratch, &mut out)?;
-                bits.extend_from_slice(&out);
+        let cells: Vec<(f64, f64)> = yaw
+            .values()
+            .flat_map(|y| pitch.values().map(move |p| (y, p)))
+            .collect();
+        let init = || (HprScratch::default(), vec![Vector3::zeros(); n]);
+        let one = |(scratch, rotated): &mut (HprScratch, Vec<Vector3<f64>>),
+                   &(y, p): &(f64, f64)| {
+            let r = EulerAngles::new(y, p, 0.0)?.to_rotation();
+            for (dst, x) in rotated.iter_mut().zip(shape) {
+                *dst = r * x;
             }
+            let mut out = vec![false; n];
+            hpr.visibility_into(rotated, scratch, &mut out)?;
+            Ok(out)
+        };
+        let mut bits = Vec::with_capacity(cells.len() * n);
+        for cell in parallel::map_with(&cells, init, one) {
+            bits.extend_from_slice(&cell?);
         }
         Ok(VisibilityMap {
             yaw,

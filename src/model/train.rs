@@ -16,6 +16,7 @@ use crate::estimate::regression::{RegressionModel, TrainingView, ViewBin};
 use crate::estimate::visibility_map::VisibilityMap;
 use crate::geometry::{EulerAngles, WeakPerspective};
 use crate::hpr::PaperHpr;
+use crate::parallel;
 use crate::shape::{Scheme, Shape2, Shape3, five};
 use crate::synth::{AngleRange, PoseGrid, ViewSynthesizer};
 
@@ -281,23 +282,27 @@ pub(crate) fn synthesize_bins(
     p: &RegressionParams,
 ) -> Result<Vec<ViewBin>> {
     p.validate()?;
-    let mut synth = ViewSynthesizer::new(mean, hpr)?;
+    let synth = ViewSynthesizer::new(mean, hpr)?;
     let mut grids = vec![p.coarse];
     grids.extend(p.bins.iter().copied());
     grids
         .into_iter()
         .map(|grid| {
-            let views = synth
-                .views(&grid)
-                .map(|v| {
-                    let v = v?;
+            let poses: Vec<EulerAngles> = grid.poses().collect();
+            let views = parallel::map_with(
+                &poses,
+                || synth.clone(),
+                |synth, &angles| {
+                    let v = synth.view(angles)?;
                     Ok(TrainingView {
                         angles: v.angles,
                         points: v.projected.iter().map(|q| [q.x, q.y]).collect(),
                         visible: v.visible,
                     })
-                })
-                .collect::<Result<Vec<_>>>()?;
+                },
+            )
+            .into_iter()
+            .collect::<Result<Vec<_>>>()?;
             Ok(ViewBin { grid, views })
         })
         .collect()
