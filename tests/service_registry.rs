@@ -498,7 +498,8 @@ fn check_folder(dir: &Path, known: &[String]) -> (String, Vec<String>) {
 }
 
 /// (c) kill -9 at random moments while versions are written and activated, 22 times: every
-/// restart serves the active version, and the pointer never names a partial version.
+/// restart serves the active version, and the pointer never names a partial version. The
+/// moments spread over 1.5 times what a job takes on the machine (measured first).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
     let dir = TempDir::new("crash");
@@ -506,6 +507,27 @@ async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
     let mut rng = StdRng::seed_from_u64(20111);
     let shapes = population(24, |p| p);
     let body = json!({"shapes": shapes_json(&shapes), "options": quick_options()});
+    // How long a job takes on this machine, upload to written version, in a folder of its own:
+    // the kills come at up to 1.5 times that after the start, so that some rounds write
+    // versions however fast the machine is.
+    let job_time = {
+        let calibration = TempDir::new("crash-calibration");
+        let server = admin_server(&calibration, "100ms");
+        let t = Instant::now();
+        let r = c
+            .post(server.url("/v1/models"))
+            .bearer_auth(TOKEN)
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        let (s, job) = json_of(r).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+        let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
+        assert_eq!(job["state"], "succeeded", "{job}");
+        t.elapsed()
+    };
+    let max_delay = (job_time.as_millis() as u64 * 3 / 2).max(350);
     let (mut active, mut versions) = ("1".to_string(), Vec::new());
     for round in 0..22 {
         let mut server = admin_server(&dir, "100ms");
@@ -534,7 +556,7 @@ async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
                 }
             })
         };
-        let delay = rng.random_range(0..350);
+        let delay = rng.random_range(0..max_delay);
         tokio::time::sleep(Duration::from_millis(delay)).await;
         server.kill9();
         let _ = upload.await;
@@ -543,7 +565,8 @@ async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
     }
     assert!(
         versions.len() >= 3,
-        "only {versions:?} were written: the rounds were too short to test much"
+        "only {versions:?} were written (a job takes {job_time:?} here, kills within \
+         {max_delay} ms): the rounds were too short to test much"
     );
     let server = admin_server(&dir, "100ms");
     assert_eq!(served_version(&c, &server).await, active);
