@@ -146,6 +146,16 @@ async fn get(c: &reqwest::Client, server: &Server, path: &str) -> (StatusCode, V
     json_of(c.get(server.url(path)).send().await.unwrap()).await
 }
 
+/// `POST /v1/models` of `body` with the admin token: the answer whole (status, headers, job).
+async fn upload(c: &reqwest::Client, server: &Server, body: &Value) -> reqwest::Response {
+    c.post(server.url("/v1/models"))
+        .bearer_auth(TOKEN)
+        .json(body)
+        .send()
+        .await
+        .unwrap()
+}
+
 /// The server's Prometheus text.
 async fn metrics_text(c: &reqwest::Client, server: &Server) -> String {
     c.get(server.url("/metrics"))
@@ -212,13 +222,7 @@ async fn retraining_changes_the_served_model() {
     let shapes = population(120, |p| Vector3::new(p.x, p.y, 1.5 * p.z));
     let body = json!({"shapes": shapes_json(&shapes), "options": quick_options(),
         "notes": "deeper faces"});
-    let r = c
-        .post(server.url("/v1/models"))
-        .bearer_auth(TOKEN)
-        .json(&body)
-        .send()
-        .await
-        .unwrap();
+    let r = upload(&c, &server, &body).await;
     assert_eq!(r.status(), StatusCode::ACCEPTED);
     let location = r.headers()["location"].to_str().unwrap().to_string();
     let (_, job) = json_of(r).await;
@@ -514,14 +518,7 @@ async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
         let calibration = TempDir::new("crash-calibration");
         let server = admin_server(&calibration, "100ms");
         let t = Instant::now();
-        let r = c
-            .post(server.url("/v1/models"))
-            .bearer_auth(TOKEN)
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        let (s, job) = json_of(r).await;
+        let (s, job) = json_of(upload(&c, &server, &body).await).await;
         assert_eq!(s, StatusCode::ACCEPTED, "{job}");
         let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
         assert_eq!(job["state"], "succeeded", "{job}");
