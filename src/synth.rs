@@ -152,6 +152,12 @@ impl SyntheticView {
     }
 }
 
+/// The image of a rotated model-frame point at unit scale and no translation:
+/// `u = (R X)_x`, `v = -(R X)_y`.
+pub fn image_of(rotated: &Vector3<f64>) -> Vector2<f64> {
+    Vector2::new(rotated.x, -rotated.y)
+}
+
 /// Synthesizes views of a frontal 3D shape over a grid, lazily (memory stays flat in the grid
 /// size). `hpr` must have been built on the same shape. A clone has its own work space, for
 /// another thread.
@@ -189,11 +195,7 @@ impl<'a> ViewSynthesizer<'a> {
         let mut visible = vec![false; self.shape.len()];
         self.hpr
             .visibility_into(&self.rotated, &mut self.scratch, &mut visible)?;
-        let projected = self
-            .rotated
-            .iter()
-            .map(|p| Vector2::new(p.x, -p.y))
-            .collect();
+        let projected = self.rotated.iter().map(image_of).collect();
         Ok(SyntheticView {
             angles,
             rotation,

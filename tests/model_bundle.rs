@@ -92,6 +92,47 @@ fn the_default_model_rebuilds_byte_for_byte() {
     }
 }
 
+/// The default bundle as schema 1 wrote it: no stored visibility (whose loading runs HPR).
+fn as_schema_1() -> Bundle {
+    let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
+    b.schema_version = 1;
+    b.visibility = None;
+    b.checksum = b.compute_checksum().unwrap();
+    b
+}
+
+#[test]
+fn stored_visibility_is_what_hpr_computes() {
+    let stored = Bundle::parse(DEFAULT_BUNDLE).unwrap();
+    assert_eq!(stored.schema_version, 2);
+    assert!(stored.visibility.is_some());
+    let from_stored = stored.load().unwrap();
+    // Schema 1 bundles still load, with HPR over the triangulation computing the visibility.
+    let schema_1 = as_schema_1();
+    assert!(!schema_1.to_json().contains("\"visibility\""));
+    let from_hpr = Bundle::parse(&schema_1.to_json()).unwrap().load().unwrap();
+    assert_eq!(from_stored.visibility.grid(), from_hpr.visibility.grid());
+    assert!(from_stored.visibility.bits() == from_hpr.visibility.bits());
+    // Not a trivial map: the profile views hide some points, the frontal one none.
+    let profile = from_hpr.visibility.lookup_yaw_pitch(75.0, 0.0);
+    assert!(profile.iter().any(|v| !v) && profile.iter().any(|v| *v));
+    assert!(
+        from_hpr
+            .visibility
+            .lookup_yaw_pitch(0.0, 0.0)
+            .iter()
+            .all(|v| *v)
+    );
+    assert_eq!(from_stored.subsets.len(), from_hpr.subsets.len());
+    for (a, b) in from_stored.subsets.iter().zip(&from_hpr.subsets) {
+        assert!(
+            a.regression.bins() == b.regression.bins(),
+            "{}: the training views differ",
+            a.scheme.name
+        );
+    }
+}
+
 fn edited(f: impl FnOnce(&mut Bundle), fix_checksum: bool) -> Result<(), BundleError> {
     let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
     f(&mut b);
@@ -127,6 +168,27 @@ fn damaged_bundles_say_what_is_wrong() {
     )
     .unwrap_err();
     assert!(e.to_string().contains("regressions[1].matrices[0]"), "{e}");
+    let e = edited(|b| b.visibility = None, true).unwrap_err();
+    assert!(e.to_string().starts_with("visibility: missing"), "{e}");
+    let e = edited(
+        |b| {
+            b.visibility.as_mut().unwrap().map.pop();
+        },
+        true,
+    )
+    .unwrap_err();
+    assert!(e.to_string().starts_with("visibility.map"), "{e}");
+    let e = edited(
+        |b| b.visibility.as_mut().unwrap().views[2].replace_range(0..1, "x"),
+        true,
+    )
+    .unwrap_err();
+    assert!(
+        e.to_string().starts_with("visibility.views[2]: row 0"),
+        "{e}"
+    );
+    let e = edited(|b| b.visibility.as_mut().unwrap().views.truncate(1), true).unwrap_err();
+    assert!(e.to_string().contains("regression grids"), "{e}");
     let e = edited(|b| b.created = "yesterday".into(), true).unwrap_err();
     assert!(e.to_string().contains("created"), "{e}");
     let e = edited(

@@ -77,6 +77,40 @@ impl VisibilityMap {
         Self::build(shape, hpr, g, g)
     }
 
+    /// A map from stored bitmaps (`bits` as [`VisibilityMap::bits`] gives them), checked for
+    /// size only: whether they are HPR's for a shape is for the caller to know.
+    pub fn from_bits(
+        yaw: AngleRange,
+        pitch: AngleRange,
+        n_points: usize,
+        bits: Vec<bool>,
+    ) -> Result<Self> {
+        let cells = yaw.len() * pitch.len();
+        if bits.len() != cells * n_points {
+            return Err(Error::PointCount {
+                what: format!("visibility map of {cells} directions x {n_points} points"),
+                expected: cells * n_points,
+                got: bits.len(),
+            });
+        }
+        Ok(VisibilityMap {
+            yaw,
+            pitch,
+            n_points,
+            bits,
+        })
+    }
+
+    /// The yaw and pitch of the grid's directions.
+    pub fn grid(&self) -> (AngleRange, AngleRange) {
+        (self.yaw, self.pitch)
+    }
+
+    /// Every direction's bitmap, yaw outermost then pitch, `n_points` flags each.
+    pub fn bits(&self) -> &[bool] {
+        &self.bits
+    }
+
     /// Number of points per bitmap.
     pub fn n_points(&self) -> usize {
         self.n_points

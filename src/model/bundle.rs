@@ -1,7 +1,12 @@
 //! The model bundle format (`models/<name>/model.json`): a readable JSON document with the
-//! scheme, the frontal mean shape and its triangulation, the training parameters, the regression
-//! matrices per subset and view bin, the optional shape basis, the geometric constants, version,
-//! creation time, provenance and a checksum. Text in, text out: the file I/O is in `store.rs`.
+//! scheme, the frontal mean shape and its triangulation, the HPR visibility computed at training
+//! (schema 2), the training parameters, the regression matrices per subset and view bin, the
+//! optional shape basis, the geometric constants, version, creation time, provenance and a
+//! checksum. Text in, text out: the file I/O is in `store.rs`.
+//!
+//! Schema 2 stores what training computed by hidden-point removal (the visibility map and the
+//! training views' visibility) so that loading runs none: it was 85-90% of a start-up. Schema 1
+//! bundles, which lack it, still load, with HPR recomputing it.
 //!
 //! The checksum is `sha256:` + the SHA-256 of the compact JSON of the document with an empty
 //! `checksum` field, so it covers every value and no formatting.
@@ -10,7 +15,10 @@ use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::train::{TrainOptions, geometry_of, map_bins, subset_of, synthesize_bins};
+use super::packed_bits;
+use super::train::{
+    TrainOptions, bins_with_visibility, geometry_of, map_bins, subset_of, synthesize_bins,
+};
 use super::{PoseModel, Subset};
 use crate::error::Error;
 use crate::estimate::geometric::GeometryConstants;
@@ -19,11 +27,14 @@ use crate::estimate::regression::RegressionModel;
 use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::{PaperHpr, Triangulation};
 use crate::shape::Scheme;
+use crate::synth::AngleRange;
 
 /// The `format` field of every bundle.
 pub const FORMAT: &str = "facepose-model";
-/// The schema version this build reads and writes.
-pub const SCHEMA_VERSION: u32 = 1;
+/// The schema version this build writes.
+pub const SCHEMA_VERSION: u32 = 2;
+/// The oldest schema version this build reads (1: no stored visibility).
+pub const OLDEST_SCHEMA_VERSION: u32 = 1;
 
 /// A bundle that could not be read: the message names the field and what is wrong.
 #[derive(Debug, thiserror::Error)]
@@ -84,6 +95,23 @@ pub struct RegressionEntry {
     pub matrices: Vec<Vec<Vec<f64>>>,
 }
 
+/// What HPR found visible when the model was trained, as rows of flags in the hex text of
+/// [`packed_bits`] (one row per pose, `⌈n / 4⌉` digits for `n` points, point 0 the high bit of
+/// the first digit).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VisibilityEntry {
+    /// The visibility map's yaw directions (degrees).
+    pub map_yaw: AngleRange,
+    /// The visibility map's pitch directions (degrees).
+    pub map_pitch: AngleRange,
+    /// One row per map direction at roll 0, yaw outermost.
+    pub map: String,
+    /// One text per regression grid (the coarse one first, then the fine bins), one row per
+    /// view in grid order (yaw outermost).
+    pub views: Vec<String>,
+}
+
 /// A shape basis: `shape = mean + Σ c_k components_k`, `c ~ N(prior_mean, I)`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -109,6 +137,10 @@ pub struct Bundle {
     pub mean: Vec<[f64; 3]>,
     /// Delaunay triangulation of the frontal mean (HPR).
     pub triangles: Vec<[usize; 3]>,
+    /// HPR's results at training; required from schema 2 on (absent, schema 1 bundles keep
+    /// their checksums).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub visibility: Option<VisibilityEntry>,
     pub geometry: GeometryConstants,
     pub training: TrainOptions,
     pub regressions: Vec<RegressionEntry>,
@@ -152,6 +184,24 @@ impl Bundle {
                 })
             })
             .collect::<Result<Vec<_>, BundleError>>()?;
+        let n = model.scheme.len();
+        let (map_yaw, map_pitch) = model.visibility.grid();
+        let own = model
+            .subsets
+            .first()
+            .filter(|s| s.map == super::SubsetMap::Own)
+            .ok_or_else(|| invalid("regressions", "the first subset must be the model's own"))?;
+        let visibility = VisibilityEntry {
+            map_yaw,
+            map_pitch,
+            map: packed_bits::encode(model.visibility.bits().chunks(n), n),
+            views: own
+                .regression
+                .bins()
+                .iter()
+                .map(|b| packed_bits::encode(b.views.iter().map(|v| &v.visible[..]), n))
+                .collect(),
+        };
         let shape_basis = model.morph.as_ref().map(|b| BasisEntry {
             mean: to_arrays(b.mean()),
             components: b.components().iter().map(|c| to_arrays(c)).collect(),
@@ -167,6 +217,7 @@ impl Bundle {
             scheme: model.scheme.clone(),
             mean: to_arrays(&model.mean),
             triangles: model.hpr.triangulation().triangles().to_vec(),
+            visibility: Some(visibility),
             geometry: model.geometry,
             training: training.clone(),
             regressions,
@@ -204,8 +255,9 @@ impl Bundle {
 
     /// Validates everything (format, schema version, checksum, dimensions, finite numbers) and
     /// builds the model: HPR over the stored triangulation, the visibility map, and the
-    /// regressions with their training views regenerated from the mean and the stored grids and
-    /// the stored matrices as the all-points-present solutions.
+    /// regressions with their training views projected from the mean over the stored grids and
+    /// the stored matrices as the all-points-present solutions. The visibility of the map and
+    /// the views is the stored one (schema 2), or HPR's (schema 1).
     pub fn load(&self) -> Result<PoseModel, BundleError> {
         if self.format != FORMAT {
             return Err(invalid(
@@ -213,11 +265,21 @@ impl Bundle {
                 format!("expected {FORMAT:?}, found {:?}", self.format),
             ));
         }
-        if self.schema_version != SCHEMA_VERSION {
+        if !(OLDEST_SCHEMA_VERSION..=SCHEMA_VERSION).contains(&self.schema_version) {
             return Err(invalid(
                 "schema_version",
                 format!(
-                    "this build reads version {SCHEMA_VERSION}, the file is version {}",
+                    "this build reads versions {OLDEST_SCHEMA_VERSION} to {SCHEMA_VERSION}, \
+                     the file is version {}",
+                    self.schema_version
+                ),
+            ));
+        }
+        if self.schema_version >= 2 && self.visibility.is_none() {
+            return Err(invalid(
+                "visibility",
+                format!(
+                    "missing: schema version {} bundles store the visibility computed at training",
                     self.schema_version
                 ),
             ));
@@ -252,7 +314,20 @@ impl Bundle {
         let mean = to_vectors(&self.mean);
         let tri = Triangulation::new(&mean, self.triangles.clone()).map_err(core("triangles"))?;
         let hpr = PaperHpr::new(tri);
-        let visibility = VisibilityMap::build_default(&mean, &hpr).map_err(core("triangles"))?;
+        self.training
+            .regression
+            .validate()
+            .map_err(core("training.regression"))?;
+        let (visibility, stored_views) = match &self.visibility {
+            Some(v) => {
+                let (map, views) = v.decode(n, &self.training)?;
+                (map, Some(views))
+            }
+            None => (
+                VisibilityMap::build_default(&mean, &hpr).map_err(core("triangles"))?,
+                None,
+            ),
+        };
         // Stored for readers of the file; what is served is recomputed and must agree.
         let g = geometry_of(&self.scheme, &mean).map_err(core("mean"))?;
         for (field, stored, derived) in [
@@ -271,8 +346,11 @@ impl Bundle {
             }
         }
         let mut subsets = Vec::new();
-        let own_bins = synthesize_bins(&mean, &hpr, &self.training.regression)
-            .map_err(core("training.regression"))?;
+        let own_bins = match stored_views {
+            Some(views) => bins_with_visibility(&mean, &self.training.regression, &views),
+            None => synthesize_bins(&mean, &hpr, &self.training.regression),
+        }
+        .map_err(core("training.regression"))?;
         for (k, entry) in self.regressions.iter().enumerate() {
             let field = format!("regressions[{k}]");
             let (scheme, map) = subset_of(&self.scheme, &entry.scheme).map_err(core(&field))?;
@@ -363,6 +441,45 @@ impl Bundle {
             subsets,
             morph,
         })
+    }
+}
+
+impl VisibilityEntry {
+    /// The map and, per regression grid, the views' flags, checked against `n` points and the
+    /// grids of `training`.
+    fn decode(
+        &self,
+        n: usize,
+        training: &TrainOptions,
+    ) -> Result<(VisibilityMap, Vec<Vec<bool>>), BundleError> {
+        let cells = self.map_yaw.len() * self.map_pitch.len();
+        let bits = packed_bits::decode(&self.map, n, cells)
+            .map_err(|reason| invalid("visibility.map", reason))?;
+        let map = VisibilityMap::from_bits(self.map_yaw, self.map_pitch, n, bits)
+            .map_err(core("visibility.map"))?;
+        let p = &training.regression;
+        let grids: Vec<_> = std::iter::once(&p.coarse).chain(&p.bins).collect();
+        if self.views.len() != grids.len() {
+            return Err(invalid(
+                "visibility.views",
+                format!(
+                    "{} entries for {} regression grids (training.regression)",
+                    self.views.len(),
+                    grids.len()
+                ),
+            ));
+        }
+        let views = self
+            .views
+            .iter()
+            .zip(grids)
+            .enumerate()
+            .map(|(k, (text, grid))| {
+                packed_bits::decode(text, n, grid.len())
+                    .map_err(|reason| invalid(format!("visibility.views[{k}]"), reason))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok((map, views))
     }
 }
 

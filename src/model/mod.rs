@@ -7,6 +7,7 @@
 
 pub mod basis;
 pub mod bundle;
+pub mod packed_bits;
 pub mod store;
 pub mod train;
 pub mod validate;

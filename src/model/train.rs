@@ -18,7 +18,7 @@ use crate::geometry::{EulerAngles, WeakPerspective};
 use crate::hpr::PaperHpr;
 use crate::parallel;
 use crate::shape::{Scheme, Shape2, Shape3, five};
-use crate::synth::{AngleRange, PoseGrid, ViewSynthesizer};
+use crate::synth::{AngleRange, PoseGrid, ViewSynthesizer, image_of};
 
 /// Pose grids and ridge parameter of the regressions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -267,15 +267,15 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     }
 }
 
-/// The training views of the model's own scheme over the coarse grid and the fine bins:
-/// projections of the frontal mean with HPR visibility. Subsets take theirs from these with
-/// [`map_bins`] rather than synthesizing again.
 /// The geometric method's constants of a frontal mean shape over `scheme`.
 pub(crate) fn geometry_of(scheme: &Scheme, mean: &[Vector3<f64>]) -> Result<GeometryConstants> {
     let five = SubsetMap::Anchors.map_points(scheme, mean);
     GeometryConstants::from_mean(&[five[0], five[1], five[2], five[3], five[4]])
 }
 
+/// The training views of the model's own scheme over the coarse grid and the fine bins:
+/// projections of the frontal mean with HPR visibility. Subsets take theirs from these with
+/// [`map_bins`] rather than synthesizing again.
 pub(crate) fn synthesize_bins(
     mean: &[Vector3<f64>],
     hpr: &PaperHpr,
@@ -283,10 +283,7 @@ pub(crate) fn synthesize_bins(
 ) -> Result<Vec<ViewBin>> {
     p.validate()?;
     let synth = ViewSynthesizer::new(mean, hpr)?;
-    let mut grids = vec![p.coarse];
-    grids.extend(p.bins.iter().copied());
-    grids
-        .into_iter()
+    grids_of(p)
         .map(|grid| {
             let poses: Vec<EulerAngles> = grid.poses().collect();
             let views = parallel::map_with(
@@ -306,6 +303,66 @@ pub(crate) fn synthesize_bins(
             Ok(ViewBin { grid, views })
         })
         .collect()
+}
+
+/// The training views of [`synthesize_bins`] with their visibility given (as a bundle stores
+/// it: per grid, every view's `mean.len()` flags in grid order) instead of computed by HPR.
+pub(crate) fn bins_with_visibility(
+    mean: &[Vector3<f64>],
+    p: &RegressionParams,
+    visibility: &[Vec<bool>],
+) -> Result<Vec<ViewBin>> {
+    p.validate()?;
+    let grids: Vec<PoseGrid> = grids_of(p).collect();
+    if visibility.len() != grids.len() {
+        return Err(Error::param(
+            "visibility",
+            format!(
+                "{} view grids' visibility for {} regression grids",
+                visibility.len(),
+                grids.len()
+            ),
+        ));
+    }
+    let n = mean.len();
+    grids
+        .into_iter()
+        .zip(visibility)
+        .enumerate()
+        .map(|(k, (grid, flags))| {
+            if flags.len() != grid.len() * n {
+                return Err(Error::PointCount {
+                    what: format!("visibility flags of regression grid {k}"),
+                    expected: grid.len() * n,
+                    got: flags.len(),
+                });
+            }
+            let views = grid
+                .poses()
+                .zip(flags.chunks(n))
+                .map(|(angles, visible)| {
+                    let r = angles.to_rotation();
+                    TrainingView {
+                        angles,
+                        points: mean
+                            .iter()
+                            .map(|x| {
+                                let q = image_of(&(r * x));
+                                [q.x, q.y]
+                            })
+                            .collect(),
+                        visible: visible.to_vec(),
+                    }
+                })
+                .collect();
+            Ok(ViewBin { grid, views })
+        })
+        .collect()
+}
+
+/// The regression grids: the coarse one, then the fine bins.
+fn grids_of(p: &RegressionParams) -> impl Iterator<Item = PoseGrid> + '_ {
+    std::iter::once(p.coarse).chain(p.bins.iter().copied())
 }
 
 /// A subset's training views from the model scheme's.
