@@ -68,28 +68,34 @@ fn service(c: &mut Criterion) {
         c.bench_function(&format!("http/parse batch of 100/{name}"), |b| {
             b.iter(|| parse_batch_request(black_box(batch.as_bytes())).unwrap())
         });
-        let grpc = proto::EstimateRequest {
-            face: Some(proto::Face {
-                landmarks: pts
-                    .iter()
-                    .map(|p| proto::Landmark {
-                        x: p[0],
-                        y: p[1],
-                        missing: false,
-                    })
-                    .collect(),
-                scheme: scheme.into(),
-                method: "fit".into(),
-                camera: None,
-                id: String::new(),
-                landmark_style: String::new(),
-            }),
-            model: String::new(),
+        let face = proto::Face {
+            landmarks: pts
+                .iter()
+                .map(|p| proto::Landmark {
+                    x: p[0],
+                    y: p[1],
+                    missing: false,
+                })
+                .collect(),
+            scheme: scheme.into(),
+            method: "fit".into(),
+            ..Default::default()
+        };
+        let packed = proto::Face {
+            landmarks: vec![],
+            xy: pts.iter().flatten().copied().collect(),
+            ..face.clone()
+        };
+        for (form, face) in [("landmarks", face), ("xy", packed)] {
+            let grpc = proto::EstimateRequest {
+                face: Some(face),
+                model: String::new(),
+            }
+            .encode_to_vec();
+            c.bench_function(&format!("grpc/decode one face ({form})/{name}"), |b| {
+                b.iter(|| proto::EstimateRequest::decode(black_box(grpc.as_slice())).unwrap())
+            });
         }
-        .encode_to_vec();
-        c.bench_function(&format!("grpc/decode one face/{name}"), |b| {
-            b.iter(|| proto::EstimateRequest::decode(black_box(grpc.as_slice())).unwrap())
-        });
     }
 }
 

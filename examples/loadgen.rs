@@ -3,6 +3,7 @@
 //!
 //! - `loadgen stream`: gRPC `EstimateStream` load: S streams, each sending frames of F faces
 //!   and keeping up to W frames in flight; prints poses/s and per-frame latency percentiles.
+//!   Faces carry `Landmark` messages, or with `--packed` the packed `xy` form.
 //! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
 //!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
 //!
@@ -32,6 +33,7 @@ struct Args {
     method: String,
     batch: usize,
     dir: String,
+    packed: bool,
 }
 
 fn parse_args() -> Args {
@@ -46,6 +48,7 @@ fn parse_args() -> Args {
         method: "fit".into(),
         batch: 1000,
         dir: ".".into(),
+        packed: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -61,6 +64,7 @@ fn parse_args() -> Args {
             "--scheme" => a.scheme = v(),
             "--method" => a.method = v(),
             "--batch" => a.batch = v().parse().expect("--batch N"),
+            "--packed" => a.packed = true,
             c if a.cmd.is_empty() => a.cmd = c.to_string(),
             d if a.cmd == "bodies" => a.dir = d.to_string(),
             other => panic!("unknown argument {other}"),
@@ -102,20 +106,25 @@ fn faces(n: usize, scheme: &str, seed: u64) -> Vec<Vec<[f64; 2]>> {
 }
 
 fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
+    let (landmarks, xy) = if a.packed {
+        (vec![], points.iter().flatten().copied().collect())
+    } else {
+        let l = points.iter().map(|p| proto::Landmark {
+            x: p[0],
+            y: p[1],
+            missing: false,
+        });
+        (l.collect(), vec![])
+    };
     proto::Face {
-        landmarks: points
-            .iter()
-            .map(|p| proto::Landmark {
-                x: p[0],
-                y: p[1],
-                missing: false,
-            })
-            .collect(),
+        landmarks,
         scheme: a.scheme.clone(),
         method: a.method.clone(),
         camera: None,
         id: String::new(),
         landmark_style: String::new(),
+        xy,
+        missing: vec![],
     }
 }
 
@@ -231,12 +240,13 @@ async fn stream(a: Args) {
             .map_or(0.0, |d| d.as_secs_f64() * 1e3)
     };
     println!(
-        "streams {} faces/frame {} window {} scheme {} method {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
+        "streams {} faces/frame {} window {} scheme {} method {} encoding {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
         a.streams,
         a.faces,
         a.window,
         a.scheme,
         a.method,
+        if a.packed { "xy" } else { "landmarks" },
         poses as f64 / secs,
         lat.len() as f64 / secs,
         pct(0.5),
@@ -255,7 +265,7 @@ fn main() {
             .expect("runtime")
             .block_on(stream(a)),
         _ => eprintln!(
-            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]"
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]"
         ),
     }
 }

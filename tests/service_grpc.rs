@@ -1,6 +1,6 @@
 //! The gRPC API of `facepose serve` with the generated tonic client, on the same port as HTTP:
-//! unary, batch, bidirectional streaming with smoothing, models, the standard health service
-//! and server reflection. Expected poses are those the faces were projected at.
+//! unary, batch, bidirectional streaming with smoothing, the packed landmark form, models, the
+//! standard health service and server reflection. Expected poses are those the faces were projected at.
 
 mod service_support;
 
@@ -235,6 +235,141 @@ async fn unary_batch_and_models() {
         text.contains(r#"facepose_grpc_requests_total{rpc="Estimate",code="NOT_FOUND"} 1"#),
         "{text}"
     );
+}
+
+/// The face with its landmarks in the packed form: `xy`, and `missing` for the missing ones
+/// (their coordinates replaced by NaN, which the server must ignore).
+fn packed(face: &proto::Face) -> proto::Face {
+    let mut f = face.clone();
+    f.landmarks.clear();
+    f.xy = face
+        .landmarks
+        .iter()
+        .flat_map(|l| if l.missing { [f64::NAN; 2] } else { [l.x, l.y] })
+        .collect();
+    f.missing = (0..face.landmarks.len() as u32)
+        .filter(|&i| face.landmarks[i as usize].missing)
+        .rev()
+        .collect();
+    f
+}
+
+#[tokio::test]
+async fn packed_landmarks_are_the_same_faces() {
+    let server = Server::start(&[]);
+    let mut c = server.grpc().await;
+    let mut holes = proto_face(&face68(25.0, -5.0, 10.0), "", "fit", "holes");
+    for i in [0, 1, 2, 30, 67] {
+        holes.landmarks[i].missing = true;
+    }
+    let faces = [
+        proto_face(&face68(-40.0, 10.0, -5.0), "", "", "whole"),
+        holes,
+        proto_face(&face5(15.0, 5.0, 0.0), "five", "geometry", "five"),
+        proto_face(&face68(0.0, 0.0, 0.0)[..60], "", "", "short"),
+    ];
+    // Unary: the same answers, bit for bit (and the same errors).
+    for face in &faces {
+        let a = c.estimate(request(face.clone(), "")).await;
+        let b = c.estimate(request(packed(face), "")).await;
+        match (a, b) {
+            (Ok(a), Ok(b)) => assert_eq!(a.into_inner(), b.into_inner(), "{}", face.id),
+            (Err(a), Err(b)) => assert_eq!((a.code(), a.message()), (b.code(), b.message())),
+            (a, b) => panic!("{}: {a:?} against {b:?}", face.id),
+        }
+    }
+    // Batch and stream: the forms mix freely between faces.
+    let mixed: Vec<proto::Face> = faces
+        .iter()
+        .enumerate()
+        .map(|(k, f)| if k % 2 == 0 { packed(f) } else { f.clone() })
+        .collect();
+    let plain = c
+        .estimate_batch(proto::EstimateBatchRequest {
+            faces: faces.to_vec(),
+            model: String::new(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let batch = c
+        .estimate_batch(proto::EstimateBatchRequest {
+            faces: mixed.clone(),
+            model: String::new(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!((plain.succeeded, plain.failed), (3, 1));
+    assert_eq!(batch, plain);
+    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    let mut out = c
+        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap()
+        .into_inner();
+    tx.send(frame(1, mixed, None)).await.unwrap();
+    let res = out.next().await.unwrap().unwrap();
+    assert_eq!(res.faces, plain.results);
+
+    // Packed landmarks that do not fit together say what is wrong, per face.
+    let ok = face68(10.0, 0.0, 0.0);
+    let both = proto::Face {
+        xy: vec![1.0, 2.0],
+        ..proto_face(&ok, "", "", "")
+    };
+    let odd = proto::Face {
+        xy: vec![1.0; 135],
+        ..proto::Face::default()
+    };
+    let stray = proto::Face {
+        missing: vec![3],
+        ..proto_face(&ok, "", "", "")
+    };
+    let out_of_range = proto::Face {
+        missing: vec![68],
+        ..packed(&proto_face(&ok, "", "", ""))
+    };
+    for (face, want) in [
+        (both, "both Face.landmarks (68) and Face.xy (2 numbers)"),
+        (
+            odd,
+            "Face.xy has 135 numbers: it needs an x and a y per landmark",
+        ),
+        (stray, "Face.missing goes with Face.xy"),
+        (
+            out_of_range,
+            "Face.missing has index 68, but Face.xy has 68 landmarks",
+        ),
+    ] {
+        let err = c
+            .estimate(request(face.clone(), ""))
+            .await
+            .map(|_| ())
+            .expect_err("an error status");
+        assert_eq!(err.code(), Code::InvalidArgument, "{err:?}");
+        assert!(
+            err.message().contains(want),
+            "{:?} lacks {want:?}",
+            err.message()
+        );
+        let batch = c
+            .estimate_batch(proto::EstimateBatchRequest {
+                faces: vec![face, proto_face(&ok, "", "", "")],
+                model: String::new(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!((batch.succeeded, batch.failed), (1, 1));
+        match &batch.results[0].result {
+            Some(face_result::Result::Error(e)) => {
+                assert_eq!(e.code, "INVALID_ARGUMENT");
+                assert!(e.message.contains(want), "{e:?}");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 }
 
 fn frame(id: u64, faces: Vec<proto::Face>, smoothing: Option<proto::Smoothing>) -> proto::Frame {

@@ -49,10 +49,49 @@ impl PoseApi {
     }
 }
 
-/// `landmarks` as optional points, into `out` (reused between faces).
-pub fn landmarks_into(landmarks: &[proto::Landmark], out: &mut Vec<Option<[f64; 2]>>) {
+/// A face's landmarks (`landmarks` or packed `xy` with `missing`) as optional points, into
+/// `out` (reused between faces); INVALID_ARGUMENT when the two forms are mixed or `xy` and
+/// `missing` do not fit together.
+pub fn landmarks_into(face: &proto::Face, out: &mut Vec<Option<[f64; 2]>>) -> Result<(), ApiError> {
     out.clear();
-    out.extend(landmarks.iter().map(|l| (!l.missing).then_some([l.x, l.y])));
+    if face.xy.is_empty() {
+        if !face.missing.is_empty() {
+            return Err(ApiError::invalid(
+                "Face.missing goes with Face.xy; with Face.landmarks, set Landmark.missing",
+            ));
+        }
+        out.extend(
+            face.landmarks
+                .iter()
+                .map(|l| (!l.missing).then_some([l.x, l.y])),
+        );
+        return Ok(());
+    }
+    if !face.landmarks.is_empty() {
+        return Err(ApiError::invalid(format!(
+            "the face has both Face.landmarks ({}) and Face.xy ({} numbers): set one of them",
+            face.landmarks.len(),
+            face.xy.len()
+        )));
+    }
+    if !face.xy.len().is_multiple_of(2) {
+        return Err(ApiError::invalid(format!(
+            "Face.xy has {} numbers: it needs an x and a y per landmark (x0, y0, x1, y1, ...)",
+            face.xy.len()
+        )));
+    }
+    let n = face.xy.len() / 2;
+    out.extend(face.xy.chunks_exact(2).map(|p| Some([p[0], p[1]])));
+    for &i in &face.missing {
+        let slot = out.get_mut(i as usize).ok_or_else(|| {
+            ApiError::invalid(format!(
+                "Face.missing has index {i}, but Face.xy has {n} landmarks (indices 0 to {})",
+                n - 1
+            ))
+        })?;
+        *slot = None;
+    }
+    Ok(())
 }
 
 /// The transport-neutral face of a proto face whose landmarks are `points`.
@@ -190,8 +229,9 @@ fn face_result(
     proto::FaceResult,
     Result<crate::estimate::Method, ErrorKind>,
 ) {
-    landmarks_into(&face.landmarks, points);
-    let (result, outcome) = match estimate_face(model, &face_spec(face, points)) {
+    let estimate =
+        landmarks_into(face, points).and_then(|()| estimate_face(model, &face_spec(face, points)));
+    let (result, outcome) = match estimate {
         Ok(p) => (
             proto::face_result::Result::Pose(pose_message(&p)),
             Ok(p.record.method),
@@ -250,10 +290,10 @@ impl PoseService for PoseApi {
                 .ok_or_else(|| ApiError::invalid("missing face: set EstimateRequest.face"))?;
             let models = state.registry.snapshot();
             let model = models.get(Some(&req.model))?;
-            let mut points = Vec::with_capacity(face.landmarks.len());
-            landmarks_into(&face.landmarks, &mut points);
+            let mut points = Vec::with_capacity(face.landmarks.len().max(face.xy.len() / 2));
             let mut tally = FaceTally::default();
-            let result = estimate_face(model, &face_spec(&face, &points));
+            let result = landmarks_into(&face, &mut points)
+                .and_then(|()| estimate_face(model, &face_spec(&face, &points)));
             match &result {
                 Ok(p) => tally.ok(p.record.method),
                 Err(e) => tally.err(e.kind),

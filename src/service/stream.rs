@@ -108,7 +108,7 @@ impl Session {
         let mut points = Vec::new();
         for (i, face) in frame.faces.into_iter().enumerate() {
             let result = model.as_ref().map_err(|e| e.clone()).and_then(|m| {
-                super::grpc::landmarks_into(&face.landmarks, &mut points);
+                super::grpc::landmarks_into(&face, &mut points)?;
                 estimate_face(m, &super::grpc::face_spec(&face, &points))
             });
             let result = match result {

@@ -327,5 +327,7 @@ pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> 
         camera: None,
         id: id.into(),
         landmark_style: String::new(),
+        xy: vec![],
+        missing: vec![],
     }
 }
