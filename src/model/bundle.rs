@@ -137,8 +137,8 @@ pub struct Bundle {
     pub mean: Vec<[f64; 3]>,
     /// Delaunay triangulation of the frontal mean (HPR).
     pub triangles: Vec<[usize; 3]>,
-    /// HPR's results at training; required from schema 2 on (absent, schema 1 bundles keep
-    /// their checksums).
+    /// HPR's results at training; required from schema 2 on. Absent in schema 1, and then
+    /// left out of the JSON, so that schema 1 bundles' checksums still verify.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub visibility: Option<VisibilityEntry>,
     pub geometry: GeometryConstants,
