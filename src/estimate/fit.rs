@@ -405,6 +405,16 @@ pub(crate) fn tukey_reweight(
 /// [`tukey_reweight`] on squared residuals already computed (`scratch` holds the ones in use
 /// for the median). Works on squares throughout: one square root, for the median.
 fn tukey_weights(res2: &[f64], w: &mut [f64], floor: f64, scratch: &mut Vec<f64>) -> bool {
+    // σ is at least `floor`: when no residual in use exceeds 2.5 · floor, none exceeds 2.5 σ,
+    // and the median is not needed (the common case of clean landmarks).
+    let floor_limit = (2.5 * floor).powi(2);
+    if res2
+        .iter()
+        .zip(w.iter())
+        .all(|(e, w)| *w <= 0.0 || *e <= floor_limit)
+    {
+        return false;
+    }
     scratch.clear();
     scratch.extend(
         res2.iter()
@@ -465,7 +475,46 @@ mod tests {
         Shape2::full(shape.iter().map(|x| cam.project(x)).collect()).unwrap()
     }
 
+    /// Tukey's weights with the median always taken (no shortcut), as the rule reads.
+    fn tukey_by_the_rule(res2: &[f64], w: &mut [f64], floor: f64) -> bool {
+        let mut used: Vec<f64> = res2
+            .iter()
+            .zip(&*w)
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(e, _)| *e)
+            .collect();
+        if used.len() < 4 {
+            return false;
+        }
+        used.sort_by(f64::total_cmp);
+        let sigma = (1.4826 * used[used.len() / 2].sqrt()).max(floor);
+        if used.iter().all(|&e| e <= (2.5 * sigma).powi(2)) {
+            return false;
+        }
+        let c2 = (4.685 * sigma).powi(2);
+        for (wi, e) in w.iter_mut().zip(res2) {
+            if *wi > 0.0 {
+                *wi *= (1.0 - (e / c2).min(1.0)).powi(2);
+            }
+        }
+        true
+    }
+
     proptest! {
+        /// The shortcut that skips the median (no residual over 2.5 x the floor) changes nothing.
+        #[test]
+        fn tukey_weights_follow_the_rule(
+            res in prop::collection::vec((0.0f64..6.0, prop::bool::weighted(0.9)), 0..80),
+            floor in 0.2f64..3.0,
+        ) {
+            let res2: Vec<f64> = res.iter().map(|(e, _)| e * e).collect();
+            let w0: Vec<f64> = res.iter().map(|&(_, on)| if on { 1.0 } else { 0.0 }).collect();
+            let (mut got, mut want) = (w0.clone(), w0);
+            let changed = tukey_weights(&res2, &mut got, floor, &mut Vec::new());
+            prop_assert_eq!(changed, tukey_by_the_rule(&res2, &mut want, floor));
+            prop_assert_eq!(got, want);
+        }
+
         #[test]
         fn recovers_a_known_pose(yaw in -80.0f64..80.0, pitch in -60.0f64..60.0, roll in -90.0f64..90.0, s in 0.5f64..5.0) {
             let a = EulerAngles::new(yaw, pitch, roll).unwrap();
