@@ -101,6 +101,48 @@ fn as_schema_1() -> Bundle {
     b
 }
 
+/// The checksum of models/default/model.json as schema 1 wrote it (at dc7c445), before the
+/// bundle stored its visibility. Everything else in the file is unchanged since.
+const SCHEMA_1_CHECKSUM: &str =
+    "sha256:06dcd51e6d2ff9a920025ed75a66a37c3dda8c229b77faec2d525b4265a21ef4";
+
+#[test]
+fn schema_1_bundles_keep_their_checksums() {
+    let b = as_schema_1();
+    assert_eq!(
+        b.checksum, SCHEMA_1_CHECKSUM,
+        "a schema 1 bundle no longer hashes as it did when written (or the default model's \
+         content changed: then update SCHEMA_1_CHECKSUM from a schema 1 build)"
+    );
+}
+
+#[test]
+fn bundles_of_unknown_schema_versions_say_so_before_their_fields() {
+    // A newer schema may add fields: the version is what the message names.
+    let mut v: serde_json::Value = serde_json::from_str(DEFAULT_BUNDLE).unwrap();
+    v["schema_version"] = 3.into();
+    v["a_field_of_schema_3"] = serde_json::json!([1, 2]);
+    let e = Bundle::parse(&v.to_string()).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("reads versions 1 to 2, the file is version 3: a newer build"),
+        "{e}"
+    );
+    // An unknown field in a version this build reads is named as such.
+    v["schema_version"] = 2.into();
+    let e = Bundle::parse(&v.to_string()).unwrap_err();
+    assert!(e.to_string().contains("a_field_of_schema_3"), "{e}");
+    // Schema 1 has no visibility field.
+    let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
+    b.schema_version = 1;
+    b.checksum = b.compute_checksum().unwrap();
+    let e = Bundle::parse(&b.to_json()).unwrap().load().unwrap_err();
+    assert!(
+        e.to_string().contains("not a field of schema version 1"),
+        "{e}"
+    );
+}
+
 #[test]
 fn stored_visibility_is_what_hpr_computes() {
     let stored = Bundle::parse(DEFAULT_BUNDLE).unwrap();

@@ -245,11 +245,23 @@ impl Bundle {
     }
 
     /// Parses a bundle's text, naming the field on error. Does not validate (see [`Bundle::load`]).
+    /// A bundle of a schema version this build does not read fails on its version, not on the
+    /// fields that version added.
     pub fn parse(text: &str) -> Result<Bundle, BundleError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        serde_path_to_error::deserialize(de).map_err(|e| BundleError::Parse {
-            field: e.path().to_string(),
-            reason: e.inner().to_string(),
+        serde_path_to_error::deserialize(de).map_err(|e| {
+            if let Ok(Header {
+                schema_version: Some(v),
+            }) = serde_json::from_str::<Header>(text)
+            {
+                if let Err(unread) = check_schema_version(v) {
+                    return unread;
+                }
+            }
+            BundleError::Parse {
+                field: e.path().to_string(),
+                reason: e.inner().to_string(),
+            }
         })
     }
 
@@ -265,24 +277,25 @@ impl Bundle {
                 format!("expected {FORMAT:?}, found {:?}", self.format),
             ));
         }
-        if !(OLDEST_SCHEMA_VERSION..=SCHEMA_VERSION).contains(&self.schema_version) {
-            return Err(invalid(
-                "schema_version",
-                format!(
-                    "this build reads versions {OLDEST_SCHEMA_VERSION} to {SCHEMA_VERSION}, \
-                     the file is version {}",
-                    self.schema_version
-                ),
-            ));
-        }
-        if self.schema_version >= 2 && self.visibility.is_none() {
-            return Err(invalid(
-                "visibility",
-                format!(
-                    "missing: schema version {} bundles store the visibility computed at training",
-                    self.schema_version
-                ),
-            ));
+        check_schema_version(self.schema_version)?;
+        match (self.schema_version, &self.visibility) {
+            (1, Some(_)) => {
+                return Err(invalid(
+                    "visibility",
+                    "not a field of schema version 1: set schema_version to 2",
+                ));
+            }
+            (v, None) if v >= 2 => {
+                return Err(invalid(
+                    "visibility",
+                    format!(
+                        "missing: schema version {v} bundles store the visibility computed at \
+                         training; the file was edited or truncated: rebuild it with the \
+                         command in its provenance"
+                    ),
+                ));
+            }
+            _ => {}
         }
         let actual = self.compute_checksum()?;
         if actual != self.checksum {
@@ -442,6 +455,31 @@ impl Bundle {
             morph,
         })
     }
+}
+
+/// The one field of a bundle read before the rest: its schema version.
+#[derive(Deserialize)]
+struct Header {
+    schema_version: Option<u32>,
+}
+
+/// Whether this build reads bundles of schema version `v`, with what to do when it does not.
+fn check_schema_version(v: u32) -> Result<(), BundleError> {
+    if (OLDEST_SCHEMA_VERSION..=SCHEMA_VERSION).contains(&v) {
+        return Ok(());
+    }
+    let todo = if v > SCHEMA_VERSION {
+        "a newer build of facepose wrote it: serve it with that build or later"
+    } else {
+        "rebuild it with the command in its provenance"
+    };
+    Err(invalid(
+        "schema_version",
+        format!(
+            "this build reads versions {OLDEST_SCHEMA_VERSION} to {SCHEMA_VERSION}, the file is \
+             version {v}: {todo}"
+        ),
+    ))
 }
 
 impl VisibilityEntry {
