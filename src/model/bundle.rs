@@ -253,10 +253,9 @@ impl Bundle {
             if let Ok(Header {
                 schema_version: Some(v),
             }) = serde_json::from_str::<Header>(text)
+                && let Err(unread) = check_schema_version(v)
             {
-                if let Err(unread) = check_schema_version(v) {
-                    return unread;
-                }
+                return unread;
             }
             BundleError::Parse {
                 field: e.path().to_string(),
