@@ -5,6 +5,7 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use facepose::geometry::{EulerAngles, WeakPerspective};
 use facepose::model::SubsetMap;
+use facepose::service::grpc::landmark_messages;
 use facepose::service::http::{PoseRequest, parse_batch_request, parse_json, parse_pose_request};
 use facepose::service::pose::{FaceSpec, estimate_face};
 use facepose::service::proto;
@@ -69,14 +70,7 @@ fn service(c: &mut Criterion) {
             b.iter(|| parse_batch_request(black_box(batch.as_bytes())).unwrap())
         });
         let face = proto::Face {
-            landmarks: pts
-                .iter()
-                .map(|p| proto::Landmark {
-                    x: p[0],
-                    y: p[1],
-                    missing: false,
-                })
-                .collect(),
+            landmarks: landmark_messages(&pts),
             scheme: scheme.into(),
             method: "fit".into(),
             ..Default::default()

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use facepose::geometry::{EulerAngles, WeakPerspective};
 use facepose::model::{SubsetMap, default_model};
+use facepose::service::grpc::landmark_messages;
 use facepose::service::proto;
 use nalgebra::Vector2;
 use prost::Message;
@@ -109,12 +110,7 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
     let (landmarks, xy) = if a.packed {
         (vec![], points.iter().flatten().copied().collect())
     } else {
-        let l = points.iter().map(|p| proto::Landmark {
-            x: p[0],
-            y: p[1],
-            missing: false,
-        });
-        (l.collect(), vec![])
+        (landmark_messages(points), vec![])
     };
     proto::Face {
         landmarks,

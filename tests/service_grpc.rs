@@ -302,12 +302,7 @@ async fn packed_landmarks_are_the_same_faces() {
         .into_inner();
     assert_eq!((plain.succeeded, plain.failed), (3, 1));
     assert_eq!(batch, plain);
-    let (tx, rx) = tokio::sync::mpsc::channel(4);
-    let mut out = c
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
-        .await
-        .unwrap()
-        .into_inner();
+    let (tx, mut out) = open_stream(&mut c, 4).await;
     tx.send(frame(1, mixed, None)).await.unwrap();
     let res = out.next().await.unwrap().unwrap();
     assert_eq!(res.faces, plain.results);
@@ -394,12 +389,7 @@ async fn streams_answer_every_frame_in_order_and_can_smooth() {
     let server = Server::start(&[]);
     let mut c = server.grpc().await;
     // Two faces per frame turning in opposite directions; frame 3 has a bad face.
-    let (tx, rx) = tokio::sync::mpsc::channel(16);
-    let mut out = c
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
-        .await
-        .unwrap()
-        .into_inner();
+    let (tx, mut out) = open_stream(&mut c, 16).await;
     for k in 0..6u64 {
         let yaw = -30.0 + 10.0 * k as f64;
         let mut faces = vec![
@@ -430,12 +420,7 @@ async fn streams_answer_every_frame_in_order_and_can_smooth() {
     assert!(out.next().await.is_none());
 
     // Smoothing: a still face with landmark jitter comes out steadier than it goes in.
-    let (tx, rx) = tokio::sync::mpsc::channel(64);
-    let mut out = c
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
-        .await
-        .unwrap()
-        .into_inner();
+    let (tx, mut out) = open_stream(&mut c, 64).await;
     let truth = rotation(20.0, -5.0, 3.0);
     let clean = face68(20.0, -5.0, 3.0);
     let mut seed = 12345u64;

@@ -204,12 +204,7 @@ async fn sigterm_drains_with_streams_open() {
 
     let mut server = Server::start(&["--drain-timeout", "5s"]);
     let mut c = server.grpc().await;
-    let (tx, rx) = tokio::sync::mpsc::channel(4);
-    let mut out = c
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
-        .await
-        .unwrap()
-        .into_inner();
+    let (tx, mut out) = open_stream(&mut c, 4).await;
     tx.send(proto::Frame {
         frame_id: 1,
         faces: vec![proto_face(&face68(10.0, 0.0, 0.0), "", "fit", "")],

@@ -366,12 +366,7 @@ async fn swaps_under_load_fail_no_request() {
     }
     // A stream, one frame after another.
     let mut grpc = server.grpc().await;
-    let (tx, rx) = tokio::sync::mpsc::channel::<facepose::service::proto::Frame>(4);
-    let mut results = grpc
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
-        .await
-        .unwrap()
-        .into_inner();
+    let (tx, mut results) = open_stream(&mut grpc, 4).await;
     let stream_stop = stop.clone();
     let stream = tokio::spawn(async move {
         let mut frames = 0u64;

@@ -494,8 +494,7 @@ impl VisibilityEntry {
             .map_err(|reason| invalid("visibility.map", reason))?;
         let map = VisibilityMap::from_bits(self.map_yaw, self.map_pitch, n, bits)
             .map_err(core("visibility.map"))?;
-        let p = &training.regression;
-        let grids: Vec<_> = std::iter::once(&p.coarse).chain(&p.bins).collect();
+        let grids: Vec<_> = training.regression.grids().collect();
         if self.views.len() != grids.len() {
             return Err(invalid(
                 "visibility.views",

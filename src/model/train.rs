@@ -86,12 +86,16 @@ impl RegressionParams {
     /// The most training views all grids together may hold (about 1 kB each for 68 points).
     pub const MAX_VIEWS: usize = 200_000;
 
+    /// The regression grids: the coarse one (bin 0), then the fine bins.
+    pub fn grids(&self) -> impl Iterator<Item = &PoseGrid> + Clone + '_ {
+        std::iter::once(&self.coarse).chain(&self.bins)
+    }
+
     /// Checks what the angle ranges alone cannot: no roll in any grid (the regression de-rolls
     /// by the eye line and learns the roll-free pose), a bounded number of views, and positive
     /// ridge candidates.
     pub fn validate(&self) -> Result<()> {
-        let grids = std::iter::once(&self.coarse).chain(&self.bins);
-        for (k, g) in grids.clone().enumerate() {
+        for (k, g) in self.grids().enumerate() {
             if g.roll.min != 0.0 || g.roll.max != 0.0 {
                 return Err(Error::param(
                     format!("regression grid {k} roll"),
@@ -102,7 +106,7 @@ impl RegressionParams {
                 ));
             }
         }
-        let views: usize = grids.map(PoseGrid::len).sum();
+        let views: usize = self.grids().map(PoseGrid::len).sum();
         if views > Self::MAX_VIEWS {
             return Err(Error::param(
                 "regression grids",
@@ -283,8 +287,8 @@ pub(crate) fn synthesize_bins(
 ) -> Result<Vec<ViewBin>> {
     p.validate()?;
     let synth = ViewSynthesizer::new(mean, hpr)?;
-    grids_of(p)
-        .map(|grid| {
+    p.grids()
+        .map(|&grid| {
             let poses: Vec<EulerAngles> = grid.poses().collect();
             let views = parallel::map_with(
                 &poses,
@@ -313,7 +317,7 @@ pub(crate) fn bins_with_visibility(
     visibility: &[Vec<bool>],
 ) -> Result<Vec<ViewBin>> {
     p.validate()?;
-    let grids: Vec<PoseGrid> = grids_of(p).collect();
+    let grids: Vec<PoseGrid> = p.grids().copied().collect();
     if visibility.len() != grids.len() {
         return Err(Error::param(
             "visibility",
@@ -358,11 +362,6 @@ pub(crate) fn bins_with_visibility(
             Ok(ViewBin { grid, views })
         })
         .collect()
-}
-
-/// The regression grids: the coarse one, then the fine bins.
-fn grids_of(p: &RegressionParams) -> impl Iterator<Item = PoseGrid> + '_ {
-    std::iter::once(p.coarse).chain(p.bins.iter().copied())
 }
 
 /// A subset's training views from the model scheme's.

@@ -49,6 +49,18 @@ impl PoseApi {
     }
 }
 
+/// `points` (image pixels, all present) as `Landmark` messages, for Rust clients.
+pub fn landmark_messages(points: &[[f64; 2]]) -> Vec<proto::Landmark> {
+    points
+        .iter()
+        .map(|p| proto::Landmark {
+            x: p[0],
+            y: p[1],
+            missing: false,
+        })
+        .collect()
+}
+
 /// A face's landmarks (`landmarks` or packed `xy` with `missing`) as optional points, into
 /// `out` (reused between faces); INVALID_ARGUMENT when the two forms are mixed or `xy` and
 /// `missing` do not fit together.

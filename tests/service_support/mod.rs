@@ -163,6 +163,24 @@ impl Server {
     }
 }
 
+/// Opens an `EstimateStream` on `c`: the sender of its frames (up to `capacity` waiting) and
+/// its results.
+pub async fn open_stream(
+    c: &mut proto::pose_service_client::PoseServiceClient<tonic::transport::Channel>,
+    capacity: usize,
+) -> (
+    tokio::sync::mpsc::Sender<proto::Frame>,
+    tonic::Streaming<proto::FrameResult>,
+) {
+    let (tx, rx) = tokio::sync::mpsc::channel(capacity);
+    let out = c
+        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .await
+        .unwrap()
+        .into_inner();
+    (tx, out)
+}
+
 impl Drop for Server {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -314,14 +332,7 @@ pub fn rotation_flat(v: &[f64]) -> Rotation3<f64> {
 
 pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> proto::Face {
     proto::Face {
-        landmarks: points
-            .iter()
-            .map(|p| proto::Landmark {
-                x: p[0],
-                y: p[1],
-                missing: false,
-            })
-            .collect(),
+        landmarks: facepose::service::grpc::landmark_messages(points),
         scheme: scheme.into(),
         method: method.into(),
         camera: None,

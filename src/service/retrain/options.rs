@@ -114,10 +114,7 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
             )));
         }
     };
-    let total: f64 = std::iter::once(&regression.coarse)
-        .chain(&regression.bins)
-        .map(views)
-        .sum();
+    let total: f64 = regression.grids().map(views).sum();
     if total > MAX_GRID_VIEWS as f64 {
         return Err(ApiError::invalid(format!(
             "options.grid: {total} training views; the limit is {MAX_GRID_VIEWS} (use larger steps)"
@@ -196,10 +193,7 @@ mod tests {
         let o = opts(RawOptions::default()).unwrap();
         assert_eq!(o.train, TrainOptions::default());
         assert_eq!(o.min_shapes, DEFAULT_MIN_SHAPES);
-        let wide: f64 = std::iter::once(&o.train.regression.coarse)
-            .chain(&o.train.regression.bins)
-            .map(views)
-            .sum();
+        let wide: f64 = o.train.regression.grids().map(views).sum();
         assert!(wide < MAX_GRID_VIEWS as f64 / 5.0, "{wide}");
         let custom = RawOptions {
             custom_grid: Some((
