@@ -6,6 +6,8 @@
 //! for a point the client could not find. Angles are degrees (`Pose_Para` convention, see
 //! [`crate::geometry::convention`]) and `rotation` is `R` as row-major nested arrays.
 
+mod number;
+
 use serde::de;
 use serde::{Deserialize, Deserializer, Serialize};
 
@@ -214,37 +216,19 @@ impl Cursor<'_> {
         }
     }
 
-    /// Coordinate `c` of landmark `k`: a JSON number
-    /// (`-?(0|[1-9][0-9]*)(.[0-9]+)?([eE][+-]?[0-9]+)?`), correctly rounded. fast-float2 (the
-    /// algorithm of std's parser) reads it where it is, in one pass; its grammar is JSON's with
-    /// a few extensions (a leading `+` or `.`, `inf`, `nan`, leading zeros, `1.`, `1.e5`), which
-    /// the checks around it refuse.
+    /// Coordinate `c` of landmark `k`: a JSON number, correctly rounded ([`number::read`]).
     fn number(&mut self, k: usize, c: &str) -> std::result::Result<f64, String> {
-        let (b, start) = (self.b, self.i);
-        let first = start + usize::from(b.get(start) == Some(&b'-'));
-        if !b.get(first).is_some_and(u8::is_ascii_digit) {
-            return Err(self.not_a_number(k, c));
-        }
-        let Ok((v, len)) = fast_float2::parse_partial::<f64, _>(&b[start..]) else {
+        let start = self.i;
+        let Some((v, end)) = number::read(self.b, start) else {
             return Err(self.not_a_number(k, c));
         };
-        let text = &b[start..start + len];
-        let int = &b[first..start + len];
-        let leading_zero = int[0] == b'0' && int.get(1).is_some_and(u8::is_ascii_digit);
-        let bare_dot = text
-            .iter()
-            .position(|&d| d == b'.')
-            .is_some_and(|p| !text.get(p + 1).is_some_and(u8::is_ascii_digit));
-        if leading_zero || bare_dot || !text[len - 1].is_ascii_digit() {
-            return Err(self.not_a_number(k, c));
-        }
-        self.i = start + len;
+        self.i = end;
         if v.is_finite() {
             Ok(v)
         } else {
             Err(format!(
                 "landmark {k} {c} = {} is out of range for a 64-bit float",
-                String::from_utf8_lossy(text)
+                String::from_utf8_lossy(&self.b[start..end])
             ))
         }
     }
