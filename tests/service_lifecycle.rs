@@ -245,8 +245,7 @@ async fn sigterm_drains_with_streams_open() {
         .expect_err("an error status");
     assert_eq!(end.code(), Code::Unavailable);
     assert!(end.message().contains("shutting down"), "{end:?}");
-    // The client, told to end, closes its side (as a tracking back end does); one that kept
-    // its request stream open would hold the connection until the drain cap.
+    // The client, told to end, closes its side (as a tracking back end does).
     drop(tx);
     let status = server
         .wait_exit(Duration::from_secs(4))
@@ -259,4 +258,38 @@ async fn sigterm_drains_with_streams_open() {
         "{logs}"
     );
     assert!(logs.contains("stopped"), "{logs}");
+}
+
+/// A request still in flight at the drain cap (here a body that stops arriving) is cut off:
+/// the process closes its connection and exits with an error status, saying why.
+#[tokio::test]
+async fn a_drain_cut_short_by_its_cap_exits_with_an_error() {
+    use tokio::io::AsyncWriteExt;
+
+    let mut server = Server::start(&["--drain-timeout", "1s", "--request-timeout", "30s"]);
+    let mut tcp = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+    tcp.write_all(
+        b"POST /v1/pose HTTP/1.1\r\nhost: facepose\r\ncontent-type: application/json\r\n\
+          content-length: 100\r\n\r\n{\"landmarks\": [",
+    )
+    .await
+    .unwrap();
+    // The request is in flight once the server has read its head.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+
+    let t = Instant::now();
+    server.terminate();
+    let status = server
+        .wait_exit(Duration::from_secs(5))
+        .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
+    assert!(t.elapsed() >= Duration::from_secs(1), "{:?}", t.elapsed());
+    assert_eq!(status.code(), Some(2), "{status:?}\n{}", server.logs());
+    let logs = server.logs();
+    assert!(logs.contains("drain timed out"), "{logs}");
+    assert!(
+        logs.contains("the drain reached --drain-timeout (1s) and was cut short"),
+        "{logs}"
+    );
+    assert!(!logs.contains("stopped"), "{logs}");
+    drop(tcp);
 }

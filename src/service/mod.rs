@@ -94,6 +94,29 @@ pub enum ServeError {
     Io(#[from] std::io::Error),
     #[error("reflection service: {0}")]
     Reflection(String),
+    /// The drain reached `--drain-timeout` with connections still open (they were closed, so
+    /// their requests went unanswered) or retraining jobs unfinished (their uploads are lost).
+    #[error(
+        "the drain reached --drain-timeout ({cap:?}) and was cut short: open connections were \
+         closed{}",
+        abandoned_clause(.abandoned_jobs)
+    )]
+    DrainCut {
+        cap: std::time::Duration,
+        abandoned_jobs: Vec<String>,
+    },
+}
+
+/// The end of [`ServeError::DrainCut`]'s message: the jobs it abandoned, if any.
+fn abandoned_clause(jobs: &[String]) -> String {
+    if jobs.is_empty() {
+        String::new()
+    } else {
+        format!(
+            ", and retraining jobs {} abandoned (send their uploads again)",
+            jobs.join(", ")
+        )
+    }
 }
 
 /// Validates the flags, starts logging and the runtime, and serves until SIGTERM/SIGINT.
@@ -258,16 +281,17 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
         result = finish => result?,
         _ = async { drained.await; tokio::time::sleep(cap).await } => {
             let abandoned = state.jobs.unfinished();
-            if abandoned.is_empty() {
-                tracing::warn!(?cap, "drain timed out; closing the remaining connections");
-            } else {
-                tracing::error!(
-                    ?cap,
-                    ?abandoned,
-                    "drain timed out; closing the remaining connections and abandoning \
-                     retraining jobs (their uploads must be sent again)"
-                );
-            }
+            tracing::error!(
+                ?cap,
+                ?abandoned,
+                "drain timed out; closing the remaining connections{}",
+                if abandoned.is_empty() { "" } else {
+                    " and abandoning retraining jobs (their uploads must be sent again)"
+                }
+            );
+            // Not a clean stop: the exit status says so (the error is printed by main).
+            let abandoned_jobs = abandoned.into_iter().map(|(id, _)| id).collect();
+            return Err(ServeError::DrainCut { cap, abandoned_jobs });
         }
     }
     tracing::info!("stopped");

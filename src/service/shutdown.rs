@@ -4,8 +4,9 @@
 //! balancers stop sending new work), the listener stops accepting, open streams are told to end
 //! (UNAVAILABLE, "server shutting down"), in-flight requests finish, new retraining uploads are
 //! refused (503 / UNAVAILABLE), and the process exits once every connection is done and every
-//! accepted retraining job has ended, or `--drain-timeout` has passed, whichever comes first
-//! (jobs cut off then are logged by id).
+//! accepted retraining job has ended (status 0), or `--drain-timeout` has passed, whichever
+//! comes first: then the connections left are closed, the jobs cut off are logged by id, and
+//! the process exits with an error status (`ServeError::DrainCut`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
