@@ -1483,3 +1483,72 @@ async fn a_queued_job_can_be_cancelled() {
         .unwrap();
     assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
 }
+
+/// Retraining jobs behind a load balancer: any replica sharing the models folder answers for a
+/// job another one runs (its record in the folder names that replica), and a cancel through
+/// it takes effect there.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn jobs_are_seen_and_cancelled_through_any_replica() {
+    let dir = TempDir::new("replica-jobs");
+    let replica = |name: &str| {
+        Server::start_with(
+            &[
+                "--models",
+                dir.arg(),
+                "--registry-poll",
+                "200ms",
+                "--replica",
+                name,
+            ],
+            None,
+            &[("FACEPOSE_ADMIN_TOKEN", TOKEN)],
+        )
+    };
+    let (a, b) = (replica("replica-a"), replica("replica-b"));
+    let c = client();
+    let body = json!({"shapes": shapes_json(&population(120, |p| p)), "activate": false});
+    let mut ids = Vec::new();
+    for _ in 0..3 {
+        let (s, job) = post_admin(&c, &a, "/v1/models", &body).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+        assert_eq!(job["replica"], "replica-a", "{job}");
+        ids.push(job["id"].as_str().unwrap().to_string());
+    }
+    // The third is queued behind two trainings: B asks A to cancel it.
+    let (s, asked) = post_admin(
+        &c,
+        &b,
+        &format!("/v1/models/jobs/{}:cancel", ids[2]),
+        &json!({}),
+    )
+    .await;
+    assert_eq!(s, StatusCode::ACCEPTED, "{asked}");
+    assert_eq!(asked["replica"], "replica-a", "{asked}");
+    for (id, want) in ids.iter().zip(["succeeded", "succeeded", "cancelled"]) {
+        let seen = wait_job(&c, &b, id).await;
+        assert_eq!(seen["state"], want, "{seen}");
+        // Both replicas tell the same story once the job has ended.
+        let (s, here) = get(&c, &a, &format!("/v1/models/jobs/{id}")).await;
+        assert_eq!(s, StatusCode::OK);
+        assert_eq!(here, seen);
+    }
+    assert!(
+        a.logs().contains("cancel asked through another replica"),
+        "{}",
+        a.logs()
+    );
+    // The gRPC view of the same job, through B.
+    let mut grpc = b.grpc().await;
+    let job = grpc
+        .get_job(facepose::service::proto::GetJobRequest { id: ids[0].clone() })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(
+        (job.state.as_str(), job.replica.as_str()),
+        ("succeeded", "replica-a")
+    );
+    // The model catalog does not list the records' folder.
+    let (_, models) = get(&c, &b, "/v1/models").await;
+    assert!(!models.to_string().contains(".jobs"), "{models}");
+}

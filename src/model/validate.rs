@@ -32,7 +32,7 @@
 //! Pure: no I/O; the caller decides what to do when too few shapes remain.
 
 use nalgebra::{Matrix3, Rotation3, SymmetricEigen, Vector3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::geometry::procrustes::{GpaOptions, centre3, centroid_size3};
@@ -51,7 +51,7 @@ pub const MIN_DEPTH_RATIO: f64 = 0.02;
 pub const MAX_COORDINATE: f64 = 1e9;
 
 /// Why a shape was dropped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DropReason {
     /// Not the scheme's number of points.
@@ -86,7 +86,7 @@ impl DropReason {
 }
 
 /// One dropped shape (or subject): its index in the input, the reason, and the details.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Dropped {
     pub index: usize,
     pub reason: DropReason,
@@ -137,7 +137,7 @@ impl ValidationOptions {
 }
 
 /// What [`validate_shapes`] found.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ValidationReport {
     /// Shapes given.
     pub total: usize,

@@ -82,6 +82,10 @@ pub struct ServeArgs {
     /// another replica sharing the folder is served here too, e.g. 2s, 500ms.
     #[arg(long, env = "FACEPOSE_REGISTRY_POLL", default_value = "2s")]
     pub registry_poll: String,
+    /// This replica's name in the retraining jobs it runs, which every replica sharing the
+    /// models folder shows; default: the host name (a pod's name in Kubernetes).
+    #[arg(long, env = "FACEPOSE_REPLICA")]
+    pub replica: Option<String>,
 }
 
 /// The environment variable holding the admin token (read directly, never a flag: a flag
@@ -101,6 +105,7 @@ pub struct Config {
     pub admin_token: AdminToken,
     pub max_queued_jobs: usize,
     pub registry_poll: Duration,
+    pub replica: String,
 }
 
 /// The request limits, shared by both transports.
@@ -217,6 +222,13 @@ impl ServeArgs {
             admin_token: self.admin_token(std::env::var(ADMIN_TOKEN_ENV).ok())?,
             max_queued_jobs: self.max_queued_jobs,
             registry_poll,
+            replica: match &self.replica {
+                Some(r) if r.trim().is_empty() || r.len() > 253 => {
+                    return Err(bad("replica", "must be 1 to 253 characters"));
+                }
+                Some(r) => r.trim().to_string(),
+                None => super::job_records::replica_name(),
+            },
         })
     }
 

@@ -17,7 +17,7 @@ use super::AppState;
 use super::errors::{ApiError, ErrorKind};
 use super::http::{VersionSummary, version_summaries};
 use super::http_registry::versions_response;
-use super::jobs::Job;
+use super::jobs::{Cancel, Job};
 use super::metrics::{self, FaceTally};
 use super::pose::{
     FacePose, FaceSpec, INLINE_FACES, estimate_face, for_each_face, on_blocking_pool,
@@ -211,7 +211,7 @@ pub fn job_message(j: &Job) -> proto::Job {
         state: j.state.name().to_string(),
         stage: j.stage.map_or("", |s| s.name()).to_string(),
         progress: j.progress,
-        kind: j.kind.to_string(),
+        kind: j.kind.clone(),
         uploaded: j.uploaded as u32,
         activate: j.activate,
         created: j.created.clone(),
@@ -219,6 +219,7 @@ pub fn job_message(j: &Job) -> proto::Job {
         validation: j.validation.as_ref().map(report_message),
         version: j.version.clone().unwrap_or_default(),
         error: j.error.clone().unwrap_or_default(),
+        replica: j.replica.clone(),
     }
 }
 
@@ -506,7 +507,11 @@ impl PoseService for PoseApi {
     ) -> Result<Response<proto::Job>, Status> {
         let state = self.state.clone();
         unary(self, "GetJob", async move {
-            Ok(job_message(&state.jobs.get(&request.into_inner().id)?))
+            let id = request.into_inner().id;
+            let jobs = state.clone();
+            Ok(job_message(
+                &super::http_retrain::blocking(move || jobs.jobs.get(&id)).await?,
+            ))
         })
         .await
     }
@@ -522,7 +527,10 @@ impl PoseService for PoseApi {
             if id.is_empty() {
                 return Err(ApiError::invalid("missing id: set CancelJobRequest.id"));
             }
-            Ok(job_message(&state.jobs.cancel(&id)?))
+            let jobs = state.clone();
+            match super::http_retrain::blocking(move || jobs.jobs.cancel(&id)).await? {
+                Cancel::Done(job) | Cancel::Requested(job) => Ok(job_message(&job)),
+            }
         })
         .await
     }

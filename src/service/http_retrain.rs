@@ -15,7 +15,7 @@ use super::AppState;
 use super::errors::{ApiError, ErrorBody, ErrorKind};
 use super::http::{discard_body, parse_json, read_body_limited, require_json};
 use super::http_registry::authorize;
-use super::jobs::Job;
+use super::jobs::{Cancel, Job};
 use super::pose::on_blocking_pool;
 use super::retrain::{self, RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
 use crate::model::bundle::sha256_hex;
@@ -254,7 +254,7 @@ pub async fn retrain(
         .into_response())
 }
 
-/// A retraining job (ids are per replica).
+/// A retraining job, from any replica sharing the models folder.
 #[utoipa::path(get, path = "/v1/models/jobs/{id}", tag = "registry",
     params(("id" = String, Path, description = "The job id from POST /v1/models")),
     responses((status = 200, body = Job), (status = 404, body = ErrorBody)))]
@@ -262,7 +262,17 @@ pub async fn get_job(
     State(st): State<SharedState>,
     Path(id): Path<String>,
 ) -> Result<Json<Job>, ApiError> {
-    Ok(Json(st.jobs.get(&id)?))
+    // Another replica's job is read from the models folder: off the async workers.
+    Ok(Json(blocking(move || st.jobs.get(&id)).await?))
+}
+
+/// Runs `f` on the blocking pool.
+pub(super) async fn blocking<T: Send + 'static>(
+    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+) -> Result<T, ApiError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::new(ErrorKind::Internal, format!("job look-up failed: {e}")))?
 }
 
 /// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
@@ -272,14 +282,15 @@ pub async fn get_job(
     security(("admin_token" = [])),
     responses(
         (status = 200, description = "Cancelled (state `cancelled`)", body = Job),
+        (status = 202, description = "The job runs on another replica, asked to cancel it at its next stage; the job as last recorded", body = Job),
         (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
-        (status = 404, description = "Unknown job (ids are per replica), or no action", body = ErrorBody),
+        (status = 404, description = "Unknown job, or no action", body = ErrorBody),
         (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
 pub async fn job_action(
     State(st): State<SharedState>,
     Path(id): Path<String>,
     headers: HeaderMap,
-) -> Result<Json<Job>, ApiError> {
+) -> Result<(StatusCode, Json<Job>), ApiError> {
     authorize(&st, &headers)?;
     let Some(job) = id.strip_suffix(":cancel") else {
         return Err(ApiError::new(
@@ -290,7 +301,11 @@ pub async fn job_action(
             ),
         ));
     };
-    Ok(Json(st.jobs.cancel(job)?))
+    let job = job.to_string();
+    Ok(match blocking(move || st.jobs.cancel(&job)).await? {
+        Cancel::Done(job) => (StatusCode::OK, Json(job)),
+        Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
+    })
 }
 
 #[cfg(test)]

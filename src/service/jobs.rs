@@ -11,8 +11,9 @@
 //!   one never trains, a running one stops at its next stage. A finished job never changes.
 //! - Finished jobs are kept for [`JOB_TTL`], and at most [`MAX_JOBS`] jobs are kept in all
 //!   (the oldest finished ones go first).
-//! - Job ids are per replica: the table is in memory, so a job is visible only on the replica
-//!   that accepted its upload (the versions it wrote are in the models folder, seen by all).
+//! - Every replica sharing the models folder (which retraining needs) sees every job: the
+//!   replica that runs a job writes its record into the folder and acts on cancels asked
+//!   through the others ([`super::job_records`]).
 //! - On SIGTERM the drain waits for the accepted jobs, queued and running ([`Jobs::idle`]),
 //!   within `--drain-timeout`, and uploads that arrive meanwhile are refused (503 /
 //!   UNAVAILABLE); only jobs cut off by the cap are lost, and logged by id.
@@ -21,10 +22,11 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
 
 use super::errors::{ApiError, ErrorKind};
+use super::job_records::JobRecords;
 use crate::model::validate::ValidationReport;
 
 /// How long a finished job stays visible.
@@ -33,7 +35,7 @@ pub const JOB_TTL: Duration = Duration::from_secs(3600);
 pub const MAX_JOBS: usize = 256;
 
 /// Where a job is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum JobState {
     /// Accepted, waiting for the trainer (one job trains at a time).
@@ -70,7 +72,7 @@ impl JobState {
 }
 
 /// What a running job is doing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum JobStage {
     /// Multi-view sets: structure from motion and validation of the rebuilt shapes.
@@ -95,8 +97,8 @@ impl JobStage {
     }
 }
 
-/// A job as the API shows it.
-#[derive(Debug, Clone, Serialize, utoipa::ToSchema)]
+/// A job as the API shows it, and as its record in the models folder holds it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct Job {
     /// 32 hex digits, random.
     pub id: String,
@@ -108,7 +110,7 @@ pub struct Job {
     /// 0 to 1, by stage (validation to 0.3, training to 0.85, writing and activating to 1).
     pub progress: f64,
     /// `shapes` (3D) or `subjects` (multi-view).
-    pub kind: &'static str,
+    pub kind: String,
     /// Shapes or subjects uploaded.
     pub uploaded: usize,
     /// Whether the new version is activated when written.
@@ -124,6 +126,9 @@ pub struct Job {
     pub version: Option<String>,
     /// Why the job failed: what to fix.
     pub error: Option<String>,
+    /// The replica that accepted the upload and runs the job (its host name).
+    #[serde(default)]
+    pub replica: String,
 }
 
 #[derive(Debug)]
@@ -135,6 +140,8 @@ struct Entry {
     /// Whether the job's task still runs: a job cancelled while training is finished in the
     /// table at once, but its task ends (and frees the trainer) only after the current stage.
     task: bool,
+    /// When its record was last written into the models folder.
+    written: Option<Instant>,
 }
 
 /// The job table and the trainer's queue.
@@ -145,7 +152,26 @@ pub struct Jobs {
     /// Uploads being received or checked and jobs not finished: `max_queued + 1` permits.
     slots: Arc<Semaphore>,
     max_queued: usize,
+    /// The models folder's job records, if there is a folder.
+    records: Option<JobRecords>,
+    /// This replica's name, in its jobs.
+    replica: String,
+    /// Held while a record is written, so that the last write is of the latest state.
+    io: Mutex<()>,
 }
+
+/// What a cancel did.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Cancel {
+    /// The job ran here and is cancelled.
+    Done(Job),
+    /// The job runs on another replica, which was asked to cancel it at its next stage; the
+    /// job as last recorded.
+    Requested(Job),
+}
+
+/// How often a running job's progress alone is written into its record.
+const PROGRESS_WRITES: Duration = Duration::from_secs(1);
 
 /// A place in the trainer's queue, taken before an upload is read; held by the job until it
 /// ends.
@@ -160,14 +186,54 @@ pub fn now_rfc3339() -> String {
 }
 
 impl Jobs {
-    /// A table whose queue holds at most `max_queued` jobs besides the one training.
+    /// A table whose queue holds at most `max_queued` jobs besides the one training, seen by
+    /// this replica alone.
     pub fn new(max_queued: usize) -> Self {
+        Self::shared(max_queued, None, super::job_records::replica_name())
+    }
+
+    /// [`Jobs::new`] whose jobs are recorded in `records` (a models folder's) for the other
+    /// replicas, as `replica`.
+    pub fn shared(max_queued: usize, records: Option<JobRecords>, replica: String) -> Self {
         Jobs {
             table: Mutex::new(BTreeMap::new()),
             trainer: Arc::new(Semaphore::new(1)),
             slots: Arc::new(Semaphore::new(max_queued.saturating_add(1))),
             max_queued,
+            records,
+            replica,
+            io: Mutex::new(()),
         }
+    }
+
+    /// Writes job `id`'s latest state into its record (if there is a folder); a change of
+    /// progress alone (`force` false) at most every [`PROGRESS_WRITES`]. A failure is logged:
+    /// the job goes on, seen by this replica only.
+    fn persist(&self, id: &str, force: bool) {
+        let Some(records) = &self.records else {
+            return;
+        };
+        let _io = self.io.lock().unwrap_or_else(|e| e.into_inner());
+        let job = {
+            let mut table = self.table();
+            let Some(e) = table.get_mut(id) else {
+                return;
+            };
+            if !force && e.written.is_some_and(|t| t.elapsed() < PROGRESS_WRITES) {
+                return;
+            }
+            e.written = Some(Instant::now());
+            e.job.clone()
+        };
+        off_the_workers(|| {
+            if let Err(err) = records.write(&job) {
+                tracing::warn!(job = id, %err, "could not write the job's record into the models \
+                    folder: other replicas will not see its latest state");
+            }
+            if job.state.is_finished() {
+                records.clear_cancel(id);
+            }
+        });
     }
 
     fn table(&self) -> std::sync::MutexGuard<'_, BTreeMap<String, Entry>> {
@@ -199,7 +265,7 @@ impl Jobs {
     pub fn create(
         &self,
         model: &str,
-        kind: &'static str,
+        kind: &str,
         uploaded: usize,
         activate: bool,
         validation: Option<ValidationReport>,
@@ -231,7 +297,7 @@ impl Jobs {
             state: JobState::Queued,
             stage: None,
             progress: 0.0,
-            kind,
+            kind: kind.into(),
             uploaded,
             activate,
             created: stamp.clone(),
@@ -239,82 +305,117 @@ impl Jobs {
             validation,
             version: None,
             error: None,
+            replica: self.replica.clone(),
         };
         table.insert(
-            id,
+            id.clone(),
             Entry {
                 job: job.clone(),
                 finished: None,
                 cancel: Arc::new(Notify::new()),
                 task: true,
+                written: None,
             },
         );
         super::metrics::retrain_jobs_waiting(queued(&table));
+        drop(table);
+        if let Some(records) = &self.records {
+            off_the_workers(|| records.sweep());
+        }
+        self.persist(&id, true);
         Ok(job)
     }
 
-    /// The job `id`.
+    /// The job `id`: this replica's, else the models folder's record of another replica's.
     pub fn get(&self, id: &str) -> Result<Job, ApiError> {
-        self.table()
-            .get(id)
-            .map(|e| e.job.clone())
-            .ok_or_else(|| unknown(id))
+        if let Some(e) = self.table().get(id) {
+            return Ok(e.job.clone());
+        }
+        self.recorded(id)?.ok_or_else(|| unknown(id))
+    }
+
+    /// The models folder's record of job `id`, if any.
+    fn recorded(&self, id: &str) -> Result<Option<Job>, ApiError> {
+        let Some(records) = &self.records else {
+            return Ok(None);
+        };
+        records.read(id).map_err(|e| {
+            ApiError::new(
+                ErrorKind::Internal,
+                format!("could not read the record of job {id} in the models folder: {e}"),
+            )
+        })
     }
 
     /// Changes a job (and its `updated` time); a finished job starts its time to live. A job
     /// already finished (a cancelled one, say) is left as it is.
     pub fn update(&self, id: &str, f: impl FnOnce(&mut Job)) {
-        let mut table = self.table();
-        if let Some(e) = table.get_mut(id) {
-            change(e, f);
+        self.change(id, f, false);
+    }
+
+    /// [`Jobs::update`], the record written at once if `force`, else as progress.
+    fn change(&self, id: &str, f: impl FnOnce(&mut Job), force: bool) {
+        {
+            let mut table = self.table();
+            if let Some(e) = table.get_mut(id) {
+                change(e, f);
+            }
+            super::metrics::retrain_jobs_waiting(queued(&table));
         }
-        super::metrics::retrain_jobs_waiting(queued(&table));
+        self.persist(id, force);
     }
 
     /// The job is running `stage`, `progress` done; false (and nothing changes) when it has
-    /// been cancelled, so the job stops there.
+    /// been cancelled, here or through another replica, so the job stops there.
     #[must_use]
     pub fn stage(&self, id: &str, stage: JobStage, progress: f64) -> bool {
+        if self
+            .records
+            .as_ref()
+            .is_some_and(|r| r.cancel_requested(id))
+        {
+            tracing::info!(job = id, "cancel asked through another replica");
+            let _ = self.cancel(id);
+            return false;
+        }
         let mut running = false;
-        self.update(id, |j| {
-            j.state = JobState::Running;
-            j.stage = Some(stage);
-            j.progress = progress;
-            running = true;
-        });
+        self.change(
+            id,
+            |j| {
+                j.state = JobState::Running;
+                j.stage = Some(stage);
+                j.progress = progress;
+                running = true;
+            },
+            true,
+        );
         running
     }
 
     /// Cancels a job that has not started writing its version: a queued one never trains, a
-    /// running one stops at its next stage (what it computed is dropped). 404 for an unknown
-    /// job; 409 for a finished one, or one writing or activating its version (too late: roll
-    /// back or delete the version once the job ends).
-    pub fn cancel(&self, id: &str) -> Result<Job, ApiError> {
+    /// running one stops at its next stage (what it computed is dropped). A job another replica
+    /// runs is asked to ([`Cancel::Requested`]). 404 for an unknown job; 409 for a finished one,
+    /// or one writing or activating its version (too late: roll back or delete the version once
+    /// the job ends).
+    pub fn cancel(&self, id: &str) -> Result<Cancel, ApiError> {
         let mut table = self.table();
-        let e = table.get_mut(id).ok_or_else(|| unknown(id))?;
-        let too_late = |what: String| {
-            ApiError::new(
-                ErrorKind::Conflict,
-                format!("job {id} {what}; there is nothing to cancel"),
-            )
+        let Some(e) = table.get_mut(id) else {
+            drop(table);
+            let job = self.recorded(id)?.ok_or_else(|| unknown(id))?;
+            cancellable(&job)?;
+            if let Some(records) = &self.records {
+                records.request_cancel(id).map_err(|e| {
+                    ApiError::new(
+                        ErrorKind::Internal,
+                        format!(
+                            "could not ask for the cancel of job {id} in the models folder: {e}"
+                        ),
+                    )
+                })?;
+            }
+            return Ok(Cancel::Requested(job));
         };
-        match (e.job.state, e.job.stage) {
-            (s, _) if s.is_finished() => {
-                return Err(too_late(format!("has already {}", finished_verb(s))));
-            }
-            (_, Some(stage @ (JobStage::Writing | JobStage::Activating))) => {
-                return Err(ApiError::new(
-                    ErrorKind::Conflict,
-                    format!(
-                        "job {id} is {} its version: too late to cancel; once it ends, activate \
-                         another version or delete this one (/v1/models/{}/versions)",
-                        stage.name(),
-                        e.job.model
-                    ),
-                ));
-            }
-            _ => {}
-        }
+        cancellable(&e.job)?;
         change(e, |j| {
             j.state = JobState::Cancelled;
             j.stage = None;
@@ -322,7 +423,33 @@ impl Jobs {
         e.cancel.notify_one();
         let job = e.job.clone();
         super::metrics::retrain_jobs_waiting(queued(&table));
-        Ok(job)
+        drop(table);
+        self.persist(id, true);
+        Ok(Cancel::Done(job))
+    }
+
+    /// Marks jobs whose task the drain cut off as failed, with what to do, so that their
+    /// records do not stay `running`.
+    pub fn abandon(&self, ids: &[String], cap: Duration) {
+        for id in ids {
+            let version_note = |j: &Job| {
+                format!(
+                    "this replica ({}) stopped before the job ended (its drain reached \
+                     --drain-timeout, {cap:?}); send the upload again (a version it was writing \
+                     may still appear in /v1/models/{}/versions)",
+                    j.replica, j.model
+                )
+            };
+            self.change(
+                id,
+                |j| {
+                    j.error = Some(version_note(j));
+                    j.state = JobState::Failed;
+                    j.stage = None;
+                },
+                true,
+            );
+        }
     }
 
     /// Resolves when job `id` is cancelled (at once if it already was; never for an unknown
@@ -345,20 +472,28 @@ impl Jobs {
 
     /// The job has ended well.
     pub fn succeed(&self, id: &str) {
-        self.update(id, |j| {
-            j.state = JobState::Succeeded;
-            j.stage = None;
-            j.progress = 1.0;
-        });
+        self.change(
+            id,
+            |j| {
+                j.state = JobState::Succeeded;
+                j.stage = None;
+                j.progress = 1.0;
+            },
+            true,
+        );
     }
 
     /// The job has ended with `error`.
     pub fn fail(&self, id: &str, error: String) {
-        self.update(id, |j| {
-            j.state = JobState::Failed;
-            j.stage = None;
-            j.error = Some(error);
-        });
+        self.change(
+            id,
+            |j| {
+                j.state = JobState::Failed;
+                j.stage = None;
+                j.error = Some(error);
+            },
+            true,
+        );
     }
 
     /// Resolves once no job is queued or running and no upload is being received (the drain
@@ -400,6 +535,17 @@ impl Jobs {
     }
 }
 
+/// Runs `f`, which touches the models folder, without holding up the async tasks of the worker
+/// it is called on (`block_in_place` on a multi-threaded runtime). The write stays synchronous,
+/// so a job's record is written before the job is said to have ended and the drain can end.
+fn off_the_workers<T>(f: impl FnOnce() -> T) -> T {
+    use tokio::runtime::{Handle, RuntimeFlavor};
+    match Handle::try_current() {
+        Ok(h) if h.runtime_flavor() == RuntimeFlavor::MultiThread => tokio::task::block_in_place(f),
+        _ => f(),
+    }
+}
+
 /// Applies `f` to a job not finished, with the bookkeeping of [`Jobs::update`].
 fn change(e: &mut Entry, f: impl FnOnce(&mut Job)) {
     if e.job.state.is_finished() {
@@ -410,6 +556,30 @@ fn change(e: &mut Entry, f: impl FnOnce(&mut Job)) {
     if e.job.state.is_finished() {
         e.finished = Some(Instant::now());
         super::metrics::retrain_job_finished(e.job.state.name());
+    }
+}
+
+/// Ok if `job` can still be cancelled, else the 409 that says why not.
+fn cancellable(job: &Job) -> Result<(), ApiError> {
+    let id = &job.id;
+    match (job.state, job.stage) {
+        (s, _) if s.is_finished() => Err(ApiError::new(
+            ErrorKind::Conflict,
+            format!(
+                "job {id} has already {}; there is nothing to cancel",
+                finished_verb(s)
+            ),
+        )),
+        (_, Some(stage @ (JobStage::Writing | JobStage::Activating))) => Err(ApiError::new(
+            ErrorKind::Conflict,
+            format!(
+                "job {id} is {} its version: too late to cancel; once it ends, activate another \
+                 version or delete this one (/v1/models/{}/versions)",
+                stage.name(),
+                job.model
+            ),
+        )),
+        _ => Ok(()),
     }
 }
 
@@ -425,9 +595,9 @@ fn unknown(id: &str) -> ApiError {
     ApiError::new(
         ErrorKind::NotFound,
         format!(
-            "unknown job {id:?}: job ids are per replica and kept for an hour after the job \
-             ends; ask the replica that accepted the upload (GET /v1/models lists the versions \
-             every replica sees)"
+            "unknown job {id:?}: no replica sharing this models folder has it (jobs are kept \
+             for an hour after they end); GET /v1/models/{{name}}/versions lists the versions \
+             every replica sees"
         ),
     )
 }
@@ -494,7 +664,9 @@ mod tests {
             let (jobs, id) = (jobs.clone(), waiting.id.clone());
             async move { jobs.cancelled(&id).await }
         });
-        let j = jobs.cancel(&waiting.id).unwrap();
+        let Cancel::Done(j) = jobs.cancel(&waiting.id).unwrap() else {
+            panic!("a job of this replica is cancelled here");
+        };
         assert_eq!((j.state, j.stage), (JobState::Cancelled, None));
         tokio::time::timeout(Duration::from_secs(1), waiter)
             .await
@@ -505,7 +677,13 @@ mod tests {
             .expect("a later wait ends at once");
 
         // A running job: cancelled; its next stage does not start and nothing overwrites it.
-        assert_eq!(jobs.cancel(&running.id).unwrap().state, JobState::Cancelled);
+        assert!(matches!(
+            jobs.cancel(&running.id).unwrap(),
+            Cancel::Done(Job {
+                state: JobState::Cancelled,
+                ..
+            })
+        ));
         assert!(!jobs.stage(&running.id, JobStage::Writing, 0.85));
         jobs.fail(&running.id, "late".into());
         let j = jobs.get(&running.id).unwrap();
@@ -567,5 +745,105 @@ mod tests {
             .await
             .expect("idle once the slot is free")
             .unwrap();
+    }
+
+    /// A fresh folder for the job records of a test.
+    fn records_dir(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("facepose-jobs-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn replicas_sharing_a_folder_see_and_cancel_each_others_jobs() {
+        let dir = records_dir("shared");
+        let replica =
+            |name: &str| Jobs::shared(4, Some(JobRecords::new(&dir, name.into())), name.into());
+        let (a, b) = (replica("a"), replica("b"));
+        let job = a.create("m", "shapes", 10, true, None).unwrap();
+        assert_eq!(job.replica, "a");
+        // B reads what A wrote, at every change.
+        assert_eq!(b.get(&job.id).unwrap(), job);
+        assert!(a.stage(&job.id, JobStage::Training, 0.3));
+        let seen = b.get(&job.id).unwrap();
+        assert_eq!(
+            (seen.state, seen.stage),
+            (JobState::Running, Some(JobStage::Training))
+        );
+        // Progress alone is written at most once a second; a stage change at once.
+        a.update(&job.id, |j| j.progress = 0.5);
+        assert_eq!(b.get(&job.id).unwrap().progress, 0.3);
+
+        // A cancel through B is a request, acted on at A's next stage.
+        let Cancel::Requested(asked) = b.cancel(&job.id).unwrap() else {
+            panic!("B does not run the job");
+        };
+        assert_eq!(asked.state, JobState::Running);
+        assert!(!a.stage(&job.id, JobStage::Writing, 0.85));
+        let ended = b.get(&job.id).unwrap();
+        assert_eq!(ended.state, JobState::Cancelled);
+        assert_eq!(a.get(&job.id).unwrap(), ended);
+        // Finished: the request is gone, and a second cancel says why not.
+        assert!(
+            !dir.join(".jobs")
+                .join(format!("{}.cancel", job.id))
+                .exists()
+        );
+        let e = b.cancel(&job.id).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(e.message.contains("has already been cancelled"), "{e}");
+
+        // A job writing its version cannot be cancelled from anywhere.
+        let late = a.create("m", "shapes", 10, true, None).unwrap();
+        assert!(a.stage(&late.id, JobStage::Writing, 0.85));
+        let e = b.cancel(&late.id).unwrap_err();
+        assert!(e.message.contains("is writing its version"), "{e}");
+        // A drain cut short marks what it abandons as failed, for the others to see.
+        a.abandon(std::slice::from_ref(&late.id), Duration::from_secs(10));
+        let gone = b.get(&late.id).unwrap();
+        assert_eq!(gone.state, JobState::Failed);
+        assert!(gone.error.unwrap().contains("replica (a) stopped"));
+
+        // Unknown ids, including ones that are not ids at all, are 404s, not file look-ups.
+        for id in ["0123456789abcdef0123456789abcdef", "../../etc/passwd", ""] {
+            assert_eq!(b.get(id).unwrap_err().kind, ErrorKind::NotFound, "{id}");
+            assert_eq!(b.cancel(id).unwrap_err().kind, ErrorKind::NotFound, "{id}");
+        }
+        // Without a folder a replica knows its own jobs only.
+        assert_eq!(
+            Jobs::new(1).get(&job.id).unwrap_err().kind,
+            ErrorKind::NotFound
+        );
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn old_records_are_swept_when_a_job_is_created() {
+        let dir = records_dir("sweep");
+        let jobs = Jobs::shared(4, Some(JobRecords::new(&dir, "a".into())), "a".into());
+        let done = jobs.create("m", "shapes", 10, true, None).unwrap();
+        jobs.succeed(&done.id);
+        let running = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert!(jobs.stage(&running.id, JobStage::Training, 0.3));
+        let record = |id: &str| dir.join(".jobs").join(format!("{id}.json"));
+        let age = |id: &str, by: Duration| {
+            let f = std::fs::File::options()
+                .write(true)
+                .open(record(id))
+                .unwrap();
+            f.set_modified(std::time::SystemTime::now() - by).unwrap();
+        };
+        // Over the time to live: the finished job's record goes, the running one's stays
+        // until it is a day old.
+        age(&done.id, JOB_TTL + Duration::from_secs(60));
+        age(&running.id, JOB_TTL + Duration::from_secs(60));
+        let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert!(!record(&done.id).exists());
+        assert!(record(&running.id).exists());
+        age(&running.id, Duration::from_secs(25 * 3600));
+        let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert!(!record(&running.id).exists());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -15,6 +15,7 @@ pub mod health;
 pub mod http;
 pub mod http_registry;
 pub mod http_retrain;
+pub mod job_records;
 pub mod jobs;
 pub mod metrics;
 pub mod pose;
@@ -185,10 +186,15 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
         poll = ?cfg.registry_poll,
         "model registry"
     );
+    let replica = cfg.replica.clone();
+    // Job records go into the models folder, where the other replicas sharing it read them.
+    let job_records = registry
+        .dir()
+        .map(|d| job_records::JobRecords::new(d, replica.clone()));
     let state = Arc::new(AppState {
         registry,
         admin: cfg.admin_token.clone(),
-        jobs: jobs::Jobs::new(cfg.max_queued_jobs),
+        jobs: jobs::Jobs::shared(cfg.max_queued_jobs, job_records, replica),
         limits: cfg.limits,
         lifecycle: Lifecycle::default(),
         metrics,
@@ -290,7 +296,8 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
                 }
             );
             // Not a clean stop: the exit status says so (the error is printed by main).
-            let abandoned_jobs = abandoned.into_iter().map(|(id, _)| id).collect();
+            let abandoned_jobs: Vec<String> = abandoned.into_iter().map(|(id, _)| id).collect();
+            state.jobs.abandon(&abandoned_jobs, cap);
             return Err(ServeError::DrainCut { cap, abandoned_jobs });
         }
     }
