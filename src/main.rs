@@ -64,7 +64,12 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("facepose: {e:#}");
-            ExitCode::from(2)
+            // 2 when a command could not do its work; 3 when the service ran and its drain was
+            // cut short.
+            let status = e
+                .downcast_ref::<facepose::service::ServeError>()
+                .map_or(2, |e| e.exit_status());
+            ExitCode::from(status)
         }
     }
 }

@@ -283,11 +283,14 @@ async fn a_drain_cut_short_by_its_cap_exits_with_an_error() {
         .wait_exit(Duration::from_secs(5))
         .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
     assert!(t.elapsed() >= Duration::from_secs(1), "{:?}", t.elapsed());
-    assert_eq!(status.code(), Some(2), "{status:?}\n{}", server.logs());
+    assert_eq!(status.code(), Some(3), "{status:?}\n{}", server.logs());
     let logs = server.logs();
     assert!(logs.contains("drain timed out"), "{logs}");
     assert!(
-        logs.contains("the drain reached --drain-timeout (1s) and was cut short"),
+        logs.contains(
+            "the drain reached --drain-timeout (1s) and was cut short: open connections were \
+             closed"
+        ),
         "{logs}"
     );
     assert!(!logs.contains("stopped"), "{logs}");

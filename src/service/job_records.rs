@@ -5,8 +5,12 @@
 //!   its record at every change of state or stage (progress at most once a second). A record
 //!   is replaced whole (temporary file, then rename), so a reader never sees half of one.
 //! - Another replica answers `GET /v1/models/jobs/{id}` from the record, and a cancel by
-//!   leaving `<id>.cancel` beside it, which the running replica acts on at the job's next
-//!   stage (a queued job never trains).
+//!   claiming the job for a cancel: the running replica acts on it at the job's next stage (a
+//!   queued job never trains). Before writing its version the running replica claims the job
+//!   for the write. The claim (`<id>.claim`) is made by a hard link, which only one can make,
+//!   so a cancel and a write never both win: the loser learns which claim won.
+//! - A replica killed without a drain leaves its jobs' records at their last state until they
+//!   age out (below); a cancel through another replica is then accepted but never acted on.
 //! - Records of jobs that ended more than [`JOB_TTL`](super::jobs::JOB_TTL) ago, and any record
 //!   untouched for a day (a replica that died mid-job), are removed when a job is created.
 //! - The hidden folder is skipped by the model catalog, as the folder's other hidden entries.
@@ -24,6 +28,23 @@ pub const JOBS_DIR: &str = ".jobs";
 /// A record untouched for this long is removed whatever its state: its replica stopped
 /// without ending it.
 const STALE: Duration = Duration::from_secs(24 * 3600);
+
+/// Who claimed a job: a cancel through another replica, or the running replica's write of the
+/// job's version. The first claim stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Claim {
+    Cancel,
+    Write,
+}
+
+impl Claim {
+    fn tag(self) -> &'static [u8] {
+        match self {
+            Claim::Cancel => b"cancel\n",
+            Claim::Write => b"write\n",
+        }
+    }
+}
 
 /// The job records of one models folder, and the name this replica writes into them.
 #[derive(Debug, Clone)]
@@ -68,8 +89,8 @@ impl JobRecords {
         self.dir.join(format!("{id}.json"))
     }
 
-    fn cancel_marker(&self, id: &str) -> PathBuf {
-        self.dir.join(format!("{id}.cancel"))
+    fn claim_path(&self, id: &str) -> PathBuf {
+        self.dir.join(format!("{id}.claim"))
     }
 
     /// Replaces the record of `job`.
@@ -100,19 +121,39 @@ impl JobRecords {
         }
     }
 
-    /// Asks the replica running job `id` to cancel it.
-    pub fn request_cancel(&self, id: &str) -> std::io::Result<()> {
-        fs::write(self.cancel_marker(id), b"")
+    /// Claims job `id` for `who`, unless it is claimed already: the claim that stands.
+    pub fn claim(&self, id: &str, who: Claim) -> std::io::Result<Claim> {
+        fs::create_dir_all(&self.dir)?;
+        let tmp = self.dir.join(format!(
+            ".{id}.claim.tmp-{}-{}",
+            std::process::id(),
+            rand::random::<u32>()
+        ));
+        fs::write(&tmp, who.tag())?;
+        // A complete file under the claim's name, or an error if there is one already.
+        let linked = fs::hard_link(&tmp, self.claim_path(id));
+        let _ = fs::remove_file(&tmp);
+        match linked {
+            Ok(()) => Ok(who),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => self
+                .claimed(id)
+                .ok_or_else(|| std::io::Error::other("the job's claim vanished")),
+            Err(e) => Err(e),
+        }
     }
 
-    /// Removes job `id`'s cancel request, once the job has ended.
-    pub fn clear_cancel(&self, id: &str) {
-        let _ = fs::remove_file(self.cancel_marker(id));
+    /// The claim on job `id`, if any.
+    pub fn claimed(&self, id: &str) -> Option<Claim> {
+        match fs::read(self.claim_path(id)).ok()?.as_slice() {
+            b"cancel\n" => Some(Claim::Cancel),
+            b"write\n" => Some(Claim::Write),
+            _ => None,
+        }
     }
 
-    /// Whether a cancel of job `id` was asked through another replica.
-    pub fn cancel_requested(&self, id: &str) -> bool {
-        self.cancel_marker(id).exists()
+    /// Removes job `id`'s claim, once the job has ended.
+    pub fn clear_claim(&self, id: &str) {
+        let _ = fs::remove_file(self.claim_path(id));
     }
 
     /// Removes the records of jobs that ended over [`JOB_TTL`] ago and of any job untouched for
@@ -135,7 +176,12 @@ impl JobRecords {
             }
             let name = entry.file_name();
             let name = name.to_string_lossy();
-            let remove = match name.strip_suffix(".json") {
+            // A record, or a claim that its job may still need, goes once the job has ended
+            // (or has no record) or after a day; temporary files left by a crash at once.
+            let id = name
+                .strip_suffix(".json")
+                .or_else(|| name.strip_suffix(".claim"));
+            let remove = match id {
                 Some(id) => {
                     age >= STALE
                         || self
@@ -144,7 +190,6 @@ impl JobRecords {
                             .flatten()
                             .is_none_or(|j| j.state.is_finished())
                 }
-                // Cancel markers and temporary files left by a crash.
                 None => true,
             };
             if remove {

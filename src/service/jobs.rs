@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
 
 use super::errors::{ApiError, ErrorKind};
-use super::job_records::JobRecords;
+use super::job_records::{Claim, JobRecords};
 use crate::model::validate::ValidationReport;
 
 /// How long a finished job stays visible.
@@ -213,25 +213,25 @@ impl Jobs {
         let Some(records) = &self.records else {
             return;
         };
-        let _io = self.io.lock().unwrap_or_else(|e| e.into_inner());
-        let job = {
-            let mut table = self.table();
-            let Some(e) = table.get_mut(id) else {
-                return;
-            };
-            if !force && e.written.is_some_and(|t| t.elapsed() < PROGRESS_WRITES) {
-                return;
-            }
-            e.written = Some(Instant::now());
-            e.job.clone()
-        };
         off_the_workers(|| {
+            let _io = self.io.lock().unwrap_or_else(|e| e.into_inner());
+            let job = {
+                let mut table = self.table();
+                let Some(e) = table.get_mut(id) else {
+                    return;
+                };
+                if !force && e.written.is_some_and(|t| t.elapsed() < PROGRESS_WRITES) {
+                    return;
+                }
+                e.written = Some(Instant::now());
+                e.job.clone()
+            };
             if let Err(err) = records.write(&job) {
                 tracing::warn!(job = id, %err, "could not write the job's record into the models \
                     folder: other replicas will not see its latest state");
             }
             if job.state.is_finished() {
-                records.clear_cancel(id);
+                records.clear_claim(id);
             }
         });
     }
@@ -366,17 +366,30 @@ impl Jobs {
     }
 
     /// The job is running `stage`, `progress` done; false (and nothing changes) when it has
-    /// been cancelled, here or through another replica, so the job stops there.
+    /// been cancelled, here or through another replica, so the job stops there. Writing is
+    /// claimed in the models folder first, so that no cancel through another replica is
+    /// accepted once the version is being written.
     #[must_use]
     pub fn stage(&self, id: &str, stage: JobStage, progress: f64) -> bool {
-        if self
-            .records
-            .as_ref()
-            .is_some_and(|r| r.cancel_requested(id))
-        {
-            tracing::info!(job = id, "cancel asked through another replica");
-            let _ = self.cancel(id);
-            return false;
+        if let Some(records) = &self.records {
+            let claim = off_the_workers(|| match stage {
+                JobStage::Writing => match records.claim(id, Claim::Write) {
+                    Ok(c) => Some(c),
+                    Err(err) => {
+                        // Without the claim a cancel elsewhere could be accepted: no write.
+                        tracing::warn!(job = id, %err, "could not claim the job for its write");
+                        Some(Claim::Cancel)
+                    }
+                },
+                JobStage::Activating => None,
+                _ => records.claimed(id),
+            });
+            if claim == Some(Claim::Cancel) {
+                tracing::info!(job = id, "cancel asked through another replica");
+                // Cancelled here as well, unless it ended meanwhile.
+                let _ = self.cancel(id);
+                return false;
+            }
         }
         let mut running = false;
         self.change(
@@ -404,7 +417,7 @@ impl Jobs {
             let job = self.recorded(id)?.ok_or_else(|| unknown(id))?;
             cancellable(&job)?;
             if let Some(records) = &self.records {
-                records.request_cancel(id).map_err(|e| {
+                let claim = records.claim(id, Claim::Cancel).map_err(|e| {
                     ApiError::new(
                         ErrorKind::Internal,
                         format!(
@@ -412,6 +425,16 @@ impl Jobs {
                         ),
                     )
                 })?;
+                if claim == Claim::Write {
+                    return Err(ApiError::new(
+                        ErrorKind::Conflict,
+                        format!(
+                            "job {id} is writing its version: too late to cancel; once it ends, \
+                             activate another version or delete this one (/v1/models/{}/versions)",
+                            job.model
+                        ),
+                    ));
+                }
             }
             return Ok(Cancel::Requested(job));
         };
@@ -785,11 +808,7 @@ mod tests {
         assert_eq!(ended.state, JobState::Cancelled);
         assert_eq!(a.get(&job.id).unwrap(), ended);
         // Finished: the request is gone, and a second cancel says why not.
-        assert!(
-            !dir.join(".jobs")
-                .join(format!("{}.cancel", job.id))
-                .exists()
-        );
+        assert!(!dir.join(".jobs").join(format!("{}.claim", job.id)).exists());
         let e = b.cancel(&job.id).unwrap_err();
         assert_eq!(e.kind, ErrorKind::Conflict);
         assert!(e.message.contains("has already been cancelled"), "{e}");
@@ -799,6 +818,26 @@ mod tests {
         assert!(a.stage(&late.id, JobStage::Writing, 0.85));
         let e = b.cancel(&late.id).unwrap_err();
         assert!(e.message.contains("is writing its version"), "{e}");
+        // The race: B reads a record from before the write and asks for a cancel just after A
+        // claimed the job for its write. The claim stands and B is refused.
+        let raced = a.create("m", "shapes", 10, true, None).unwrap();
+        assert!(a.stage(&raced.id, JobStage::Training, 0.3));
+        let stale_record = b.get(&raced.id).unwrap();
+        assert_eq!(stale_record.stage, Some(JobStage::Training));
+        let records = JobRecords::new(&dir, "a".into());
+        assert_eq!(
+            records.claim(&raced.id, Claim::Write).unwrap(),
+            Claim::Write
+        );
+        let e = b.cancel(&raced.id).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert!(e.message.contains("is writing its version"), "{e}");
+        // The other way round: B's cancel claimed first, so A does not write.
+        let first = a.create("m", "shapes", 10, true, None).unwrap();
+        assert!(a.stage(&first.id, JobStage::Training, 0.3));
+        assert!(matches!(b.cancel(&first.id).unwrap(), Cancel::Requested(_)));
+        assert!(!a.stage(&first.id, JobStage::Writing, 0.85));
+        assert_eq!(b.get(&first.id).unwrap().state, JobState::Cancelled);
         // A drain cut short marks what it abandons as failed, for the others to see.
         a.abandon(std::slice::from_ref(&late.id), Duration::from_secs(10));
         let gone = b.get(&late.id).unwrap();
@@ -826,21 +865,31 @@ mod tests {
         jobs.succeed(&done.id);
         let running = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert!(jobs.stage(&running.id, JobStage::Training, 0.3));
-        let record = |id: &str| dir.join(".jobs").join(format!("{id}.json"));
-        let age = |id: &str, by: Duration| {
-            let f = std::fs::File::options()
-                .write(true)
-                .open(record(id))
-                .unwrap();
+        let file = |name: String| dir.join(".jobs").join(name);
+        let record = |id: &str| file(format!("{id}.json"));
+        let aged = |path: std::path::PathBuf, by: Duration| {
+            let f = std::fs::File::options().write(true).open(path).unwrap();
             f.set_modified(std::time::SystemTime::now() - by).unwrap();
         };
-        // Over the time to live: the finished job's record goes, the running one's stays
-        // until it is a day old.
+        let age = |id: &str, by: Duration| aged(record(id), by);
+        // A cancel asked an hour ago for the running job, not yet acted on.
+        let claims = JobRecords::new(&dir, "b".into());
+        assert_eq!(
+            claims.claim(&running.id, Claim::Cancel).unwrap(),
+            Claim::Cancel
+        );
+        aged(
+            file(format!("{}.claim", running.id)),
+            JOB_TTL + Duration::from_secs(60),
+        );
+        // Over the time to live: the finished job's record goes, the running one's and its
+        // pending claim stay until they are a day old.
         age(&done.id, JOB_TTL + Duration::from_secs(60));
         age(&running.id, JOB_TTL + Duration::from_secs(60));
         let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert!(!record(&done.id).exists());
         assert!(record(&running.id).exists());
+        assert_eq!(claims.claimed(&running.id), Some(Claim::Cancel));
         age(&running.id, Duration::from_secs(25 * 3600));
         let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert!(!record(&running.id).exists());

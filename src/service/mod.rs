@@ -98,25 +98,42 @@ pub enum ServeError {
     /// The drain reached `--drain-timeout` with connections still open (they were closed, so
     /// their requests went unanswered) or retraining jobs unfinished (their uploads are lost).
     #[error(
-        "the drain reached --drain-timeout ({cap:?}) and was cut short: open connections were \
-         closed{}",
-        abandoned_clause(.abandoned_jobs)
+        "the drain reached --drain-timeout ({cap:?}) and was cut short: {}",
+        cut_clause(*.connections_open, .abandoned_jobs)
     )]
     DrainCut {
         cap: std::time::Duration,
+        /// Whether connections were still open (else only jobs were left).
+        connections_open: bool,
         abandoned_jobs: Vec<String>,
     },
 }
 
-/// The end of [`ServeError::DrainCut`]'s message: the jobs it abandoned, if any.
-fn abandoned_clause(jobs: &[String]) -> String {
-    if jobs.is_empty() {
-        String::new()
-    } else {
+/// What [`ServeError::DrainCut`] cut: open connections, abandoned jobs, or both.
+fn cut_clause(connections_open: bool, jobs: &[String]) -> String {
+    let connections = connections_open.then(|| "open connections were closed".to_string());
+    let jobs = (!jobs.is_empty()).then(|| {
         format!(
-            ", and retraining jobs {} abandoned (send their uploads again)",
+            "retraining jobs {} were abandoned (send their uploads again)",
             jobs.join(", ")
         )
+    });
+    match (connections, jobs) {
+        (Some(c), Some(j)) => format!("{c}, and {j}"),
+        (Some(c), None) => c,
+        (None, Some(j)) => j,
+        (None, None) => "nothing was left".to_string(),
+    }
+}
+
+impl ServeError {
+    /// The process's exit status for this error: 3 for a drain cut short (the service ran,
+    /// and stopped with work cut off), 2 for everything else (it could not run).
+    pub fn exit_status(&self) -> u8 {
+        match self {
+            ServeError::DrainCut { .. } => 3,
+            _ => 2,
+        }
     }
 }
 
@@ -271,8 +288,11 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     // The drain ends when every connection is closed and every accepted retraining job has
     // ended, or at the cap.
     let jobs_state = state.clone();
+    let connections_done = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let done = connections_done.clone();
     let finish = async move {
         server.into_future().await?;
+        done.store(true, std::sync::atomic::Ordering::Release);
         let left = jobs_state.jobs.unfinished();
         if !left.is_empty() {
             tracing::info!(
@@ -286,19 +306,30 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
     tokio::select! {
         result = finish => result?,
         _ = async { drained.await; tokio::time::sleep(cap).await } => {
-            let abandoned = state.jobs.unfinished();
+            // Jobs already cancelled and finishing their stage lose nothing.
+            let abandoned_jobs: Vec<String> = state
+                .jobs
+                .unfinished()
+                .into_iter()
+                .filter(|(_, s)| *s != "cancelled, stopping")
+                .map(|(id, _)| id)
+                .collect();
+            let connections_open = !connections_done.load(std::sync::atomic::Ordering::Acquire);
             tracing::error!(
                 ?cap,
-                ?abandoned,
-                "drain timed out; closing the remaining connections{}",
-                if abandoned.is_empty() { "" } else {
-                    " and abandoning retraining jobs (their uploads must be sent again)"
-                }
+                connections_open,
+                abandoned = ?abandoned_jobs,
+                "drain timed out; closing what is left"
             );
+            // Their records say so, for the other replicas; within a bound, as the volume may
+            // be what held the drain.
+            let (jobs, ids) = (state.clone(), abandoned_jobs.clone());
+            let marked = tokio::task::spawn_blocking(move || jobs.jobs.abandon(&ids, cap));
+            if tokio::time::timeout(std::time::Duration::from_secs(2), marked).await.is_err() {
+                tracing::warn!("could not mark the abandoned jobs in the models folder in time");
+            }
             // Not a clean stop: the exit status says so (the error is printed by main).
-            let abandoned_jobs: Vec<String> = abandoned.into_iter().map(|(id, _)| id).collect();
-            state.jobs.abandon(&abandoned_jobs, cap);
-            return Err(ServeError::DrainCut { cap, abandoned_jobs });
+            return Err(ServeError::DrainCut { cap, connections_open, abandoned_jobs });
         }
     }
     tracing::info!("stopped");
