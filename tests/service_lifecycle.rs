@@ -249,6 +249,7 @@ async fn sigterm_drains_with_streams_open() {
     drop(tx);
     let status = server
         .wait_exit(Duration::from_secs(4))
+        .await
         .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
     assert!(status.success(), "{status:?}\n{}", server.logs());
     assert!(t.elapsed() < Duration::from_secs(4));
@@ -281,6 +282,7 @@ async fn a_drain_cut_short_by_its_cap_exits_with_an_error() {
     server.terminate();
     let status = server
         .wait_exit(Duration::from_secs(5))
+        .await
         .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
     assert!(t.elapsed() >= Duration::from_secs(1), "{:?}", t.elapsed());
     assert_eq!(status.code(), Some(3), "{status:?}\n{}", server.logs());

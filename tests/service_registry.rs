@@ -1369,6 +1369,7 @@ async fn sigterm_waits_for_the_accepted_retraining_jobs() {
     server.terminate();
     let status = server
         .wait_exit(Duration::from_secs(30))
+        .await
         .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
     assert!(status.success(), "{status:?}\n{}", server.logs());
     for version in ["2", "3"] {

@@ -133,13 +133,17 @@ impl Server {
     }
 
     /// Waits for the process to exit, at most `limit`.
-    pub fn wait_exit(&mut self, limit: Duration) -> Option<ExitStatus> {
+    ///
+    /// Async, so that the test's own clients keep running meanwhile: a drain closes a
+    /// connection only once its client has answered the server's GOAWAY and PING, which a
+    /// client whose runtime is blocked in a sleep never does (the drain then waits for its cap).
+    pub async fn wait_exit(&mut self, limit: Duration) -> Option<ExitStatus> {
         let t = Instant::now();
         while t.elapsed() < limit {
             if let Ok(Some(s)) = self.child.try_wait() {
                 return Some(s);
             }
-            std::thread::sleep(Duration::from_millis(10));
+            tokio::time::sleep(Duration::from_millis(10)).await;
         }
         None
     }
