@@ -510,7 +510,7 @@ impl PoseService for PoseApi {
             let id = request.into_inner().id;
             let jobs = state.clone();
             Ok(job_message(
-                &super::http_retrain::blocking(move || jobs.jobs.get(&id)).await?,
+                &on_blocking_pool("job look-up", move || jobs.jobs.get(&id)).await?,
             ))
         })
         .await
@@ -528,7 +528,7 @@ impl PoseService for PoseApi {
                 return Err(ApiError::invalid("missing id: set CancelJobRequest.id"));
             }
             let jobs = state.clone();
-            match super::http_retrain::blocking(move || jobs.jobs.cancel(&id)).await? {
+            match on_blocking_pool("job cancel", move || jobs.jobs.cancel(&id)).await? {
                 Cancel::Done(job) | Cancel::Requested(job) => Ok(job_message(&job)),
             }
         })

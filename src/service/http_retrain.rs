@@ -263,16 +263,9 @@ pub async fn get_job(
     Path(id): Path<String>,
 ) -> Result<Json<Job>, ApiError> {
     // Another replica's job is read from the models folder: off the async workers.
-    Ok(Json(blocking(move || st.jobs.get(&id)).await?))
-}
-
-/// Runs `f` on the blocking pool.
-pub(super) async fn blocking<T: Send + 'static>(
-    f: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
-) -> Result<T, ApiError> {
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ApiError::new(ErrorKind::Internal, format!("job look-up failed: {e}")))?
+    Ok(Json(
+        on_blocking_pool("job look-up", move || st.jobs.get(&id)).await?,
+    ))
 }
 
 /// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
@@ -302,10 +295,12 @@ pub async fn job_action(
         ));
     };
     let job = job.to_string();
-    Ok(match blocking(move || st.jobs.cancel(&job)).await? {
-        Cancel::Done(job) => (StatusCode::OK, Json(job)),
-        Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
-    })
+    Ok(
+        match on_blocking_pool("job cancel", move || st.jobs.cancel(&job)).await? {
+            Cancel::Done(job) => (StatusCode::OK, Json(job)),
+            Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
+        },
+    )
 }
 
 #[cfg(test)]
