@@ -1,6 +1,10 @@
 //! Compiles `proto/facepose/v1/*.proto` with protox (pure Rust: no system protoc) into the
 //! tonic/prost code of `facepose::service::proto`, and keeps the encoded file descriptor set
 //! (`$OUT_DIR/facepose_descriptor.bin`) for gRPC server reflection.
+//!
+//! `Face` and `Pose` are not generated: `src/service/proto/hand_coded.rs` codes them by hand
+//! for speed. prost's derived code for every message, those two included, is also written to
+//! `$OUT_DIR/reference/` for the tests that hold the hand-coded pair to it.
 
 use std::path::PathBuf;
 
@@ -24,6 +28,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tonic_prost_build::configure()
         .build_client(true)
         .build_server(true)
+        .extern_path(".facepose.v1.Face", "crate::service::proto::Face")
+        .extern_path(".facepose.v1.Pose", "crate::service::proto::Pose")
+        .compile_fds(compiler.file_descriptor_set())?;
+    let reference = out.join("reference");
+    std::fs::create_dir_all(&reference)?;
+    tonic_prost_build::configure()
+        .build_client(false)
+        .build_server(false)
+        .out_dir(&reference)
         .compile_fds(compiler.file_descriptor_set())?;
     Ok(())
 }

@@ -19,21 +19,12 @@ pub mod job_records;
 pub mod jobs;
 pub mod metrics;
 pub mod pose;
+pub mod proto;
 pub mod registry;
 pub mod request_json;
 pub mod retrain;
 pub mod shutdown;
 pub mod stream;
-
-/// The generated gRPC code of `proto/facepose/v1/pose.proto` (server and client).
-#[allow(clippy::all, missing_docs)]
-pub mod proto {
-    tonic::include_proto!("facepose.v1");
-
-    /// The encoded file descriptor set, for server reflection.
-    pub const FILE_DESCRIPTOR_SET: &[u8] =
-        include_bytes!(concat!(env!("OUT_DIR"), "/facepose_descriptor.bin"));
-}
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
