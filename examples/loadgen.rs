@@ -3,7 +3,10 @@
 //!
 //! - `loadgen stream`: gRPC `EstimateStream` load: S streams, each sending frames of F faces
 //!   and keeping up to W frames in flight; prints poses/s and per-frame latency percentiles.
-//!   Faces carry `Landmark` messages, or with `--packed` the packed `xy` form.
+//!   Faces carry `Landmark` messages, or with `--packed` the packed `xy` form. The frames go
+//!   out encoded in advance and of each result only whether each face got a pose is read
+//!   ([`LightCodec`]): the generator shares the server's cores, and what it spends is taken
+//!   from the server's measure.
 //! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
 //!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
 //!
@@ -19,9 +22,11 @@ use facepose::service::grpc::landmark_messages;
 use facepose::service::proto;
 use nalgebra::Vector2;
 use prost::Message;
+use prost::bytes::{BufMut, Bytes};
 use rand::{Rng, SeedableRng, rngs::StdRng};
 use serde_json::json;
 use tokio_stream::StreamExt;
+use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
 
 struct Args {
     cmd: String,
@@ -153,25 +158,91 @@ fn bodies(a: &Args) {
     );
 }
 
+/// Of a `FrameResult`, its faces only.
+#[derive(Clone, PartialEq, Message)]
+struct FrameOutcome {
+    #[prost(message, repeated, tag = "3")]
+    faces: Vec<FaceOutcome>,
+}
+
+/// Of a `FaceResult`, its pose unread (`bytes` over the same buffer: no copy, no decode).
+#[derive(Clone, PartialEq, Message)]
+struct FaceOutcome {
+    #[prost(bytes = "bytes", optional, tag = "2")]
+    pose: Option<Bytes>,
+}
+
+/// The stream's codec on the generator's side: encoded frames out, [`FrameOutcome`]s in.
+struct LightCodec;
+
+struct EncodedFrames;
+
+struct Outcomes;
+
+impl Codec for LightCodec {
+    type Encode = Bytes;
+    type Decode = FrameOutcome;
+    type Encoder = EncodedFrames;
+    type Decoder = Outcomes;
+    fn encoder(&mut self) -> EncodedFrames {
+        EncodedFrames
+    }
+    fn decoder(&mut self) -> Outcomes {
+        Outcomes
+    }
+}
+
+impl Encoder for EncodedFrames {
+    type Item = Bytes;
+    type Error = tonic::Status;
+    fn encode(&mut self, frame: Bytes, dst: &mut EncodeBuf<'_>) -> Result<(), tonic::Status> {
+        dst.put_slice(&frame);
+        Ok(())
+    }
+}
+
+impl Decoder for Outcomes {
+    type Item = FrameOutcome;
+    type Error = tonic::Status;
+    fn decode(&mut self, src: &mut DecodeBuf<'_>) -> Result<Option<FrameOutcome>, tonic::Status> {
+        FrameOutcome::decode(src).map(Some).map_err(|e| {
+            tonic::Status::internal(format!("a FrameResult that does not decode: {e}"))
+        })
+    }
+}
+
 /// One stream: returns (poses, per-frame latencies).
 async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
-    let mut client = proto::pose_service_client::PoseServiceClient::connect(a.addr.clone())
+    let channel = tonic::transport::Endpoint::from_shared(a.addr.clone())
+        .expect("--addr is a URL")
+        .connect()
         .await
         .expect("connect");
-    let pool: Vec<proto::Frame> = faces(64 * a.faces, &a.scheme, seed)
+    let mut client = tonic::client::Grpc::new(channel);
+    let pool: Vec<Bytes> = faces(64 * a.faces, &a.scheme, seed)
         .chunks(a.faces)
         .enumerate()
-        .map(|(k, fs)| proto::Frame {
-            frame_id: k as u64,
-            timestamp_us: 0,
-            faces: fs.iter().map(|f| proto_face(f, a)).collect(),
-            model: String::new(),
-            smoothing: None,
+        .map(|(k, fs)| {
+            let frame = proto::Frame {
+                frame_id: k as u64,
+                timestamp_us: 0,
+                faces: fs.iter().map(|f| proto_face(f, a)).collect(),
+                model: String::new(),
+                smoothing: None,
+            };
+            Bytes::from(frame.encode_to_vec())
         })
         .collect();
-    let (tx, rx) = tokio::sync::mpsc::channel::<proto::Frame>(a.window.max(1));
+    let (tx, rx) = tokio::sync::mpsc::channel::<Bytes>(a.window.max(1));
+    client.ready().await.expect("the server is ready");
     let mut out = client
-        .estimate_stream(tokio_stream::wrappers::ReceiverStream::new(rx))
+        .streaming(
+            tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx)),
+            tonic::codegen::http::uri::PathAndQuery::from_static(
+                "/facepose.v1.PoseService/EstimateStream",
+            ),
+            LightCodec,
+        )
         .await
         .expect("stream")
         .into_inner();
@@ -181,8 +252,7 @@ async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>)
     let mut k = 0usize;
     loop {
         while sent.len() < a.window && Instant::now() < until {
-            let mut f = pool[k % pool.len()].clone();
-            f.frame_id = k as u64;
+            let f = pool[k % pool.len()].clone();
             k += 1;
             sent.push_back(Instant::now());
             if tx.send(f).await.is_err() {
@@ -196,11 +266,7 @@ async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>)
             Some(Ok(r)) => {
                 let t0 = sent.pop_front().expect("a frame in flight");
                 lat.push(t0.elapsed());
-                poses += r
-                    .faces
-                    .iter()
-                    .filter(|f| matches!(f.result, Some(proto::face_result::Result::Pose(_))))
-                    .count() as u64;
+                poses += r.faces.iter().filter(|f| f.pose.is_some()).count() as u64;
             }
             Some(Err(e)) => panic!("stream error: {e}"),
             None => break,
