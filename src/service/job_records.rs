@@ -9,10 +9,14 @@
 //!   queued job never trains). Before writing its version the running replica claims the job
 //!   for the write. The claim (`<id>.claim`) is made by a hard link, which only one can make,
 //!   so a cancel and a write never both win: the loser learns which claim won.
-//! - A replica killed without a drain leaves its jobs' records at their last state until they
-//!   age out (below); a cancel through another replica is then accepted but never acted on.
-//! - Records of jobs that ended more than [`JOB_TTL`](super::jobs::JOB_TTL) ago, and any record
-//!   untouched for a day (a replica that died mid-job), are removed when a job is created.
+//! - While a job is queued or running its replica touches the record every [`HEARTBEAT`].
+//!   A record of such a job untouched for [`LOST_AFTER`] is a job whose replica stopped
+//!   without ending it (killed, out of memory, cut off from the folder): the other replicas
+//!   answer it as failed, saying so, and refuse to cancel it, instead of showing it running
+//!   and accepting a cancel nobody will carry out.
+//! - Records untouched for [`JOB_TTL`](super::jobs::JOB_TTL) (jobs that ended then, or were
+//!   lost) are removed when a job is created, with their claims; a claim goes with its job's
+//!   record, or after a day.
 //! - The hidden folder is skipped by the model catalog, as the folder's other hidden entries.
 
 use std::fs;
@@ -25,9 +29,15 @@ use super::jobs::{JOB_TTL, Job};
 /// The folder of job records within a models folder.
 pub const JOBS_DIR: &str = ".jobs";
 
-/// A record untouched for this long is removed whatever its state: its replica stopped
-/// without ending it.
+/// A claim untouched for this long is removed whatever its job's record says.
 const STALE: Duration = Duration::from_secs(24 * 3600);
+
+/// How often the replica running a job touches its record, changes or not.
+pub const HEARTBEAT: Duration = Duration::from_secs(10);
+
+/// A record of a queued or running job untouched for this long is taken as lost: six
+/// heartbeats, so that a busy volume or clocks a little apart do not make a live job lost.
+pub const LOST_AFTER: Duration = Duration::from_secs(60);
 
 /// Who claimed a job: a cancel through another replica, or the running replica's write of the
 /// job's version. The first claim stands.
@@ -109,16 +119,38 @@ impl JobRecords {
 
     /// The record of job `id`, if there is one (`None` too for an id that is not one).
     pub fn read(&self, id: &str) -> std::io::Result<Option<Job>> {
+        Ok(self.read_aged(id)?.map(|(job, _)| job))
+    }
+
+    /// [`JobRecords::read`], with the time since the record was last written or touched.
+    pub fn read_aged(&self, id: &str) -> std::io::Result<Option<(Job, Duration)>> {
         if !is_job_id(id) {
             return Ok(None);
         }
-        match fs::read(self.record(id)) {
-            Ok(bytes) => serde_json::from_slice(&bytes)
-                .map(Some)
-                .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(e),
-        }
+        let mut f = match fs::File::open(self.record(id)) {
+            Ok(f) => f,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        // The age of the file that is read, not of one renamed over it since.
+        let modified = f.metadata()?.modified()?;
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut f, &mut bytes)?;
+        let job = serde_json::from_slice(&bytes)
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+        let age = SystemTime::now()
+            .duration_since(modified)
+            .unwrap_or_default();
+        Ok(Some((job, age)))
+    }
+
+    /// Marks the record of job `id` as current (its modification time), without rewriting
+    /// it. `NotFound` when there is no record to touch.
+    pub fn touch(&self, id: &str) -> std::io::Result<()> {
+        fs::File::options()
+            .write(true)
+            .open(self.record(id))?
+            .set_modified(SystemTime::now())
     }
 
     /// Claims job `id` for `who`, unless it is claimed already: the claim that stands.
@@ -156,8 +188,9 @@ impl JobRecords {
         let _ = fs::remove_file(self.claim_path(id));
     }
 
-    /// Removes the records of jobs that ended over [`JOB_TTL`] ago and of any job untouched for
-    /// a day, with their cancel markers. Errors are left for the next sweep.
+    /// Removes the records untouched for [`JOB_TTL`] (jobs that ended then, or were lost: a
+    /// live job's record is touched every [`HEARTBEAT`]), and claims whose job has no live
+    /// record, or untouched for a day. Errors are left for the next sweep.
     pub fn sweep(&self) {
         let Ok(entries) = fs::read_dir(&self.dir) else {
             return;
@@ -176,19 +209,16 @@ impl JobRecords {
             }
             let name = entry.file_name();
             let name = name.to_string_lossy();
-            // A record, or a claim that its job may still need, goes once the job has ended
-            // (or has no record) or after a day; temporary files left by a crash at once.
-            let id = name
-                .strip_suffix(".json")
-                .or_else(|| name.strip_suffix(".claim"));
-            let remove = match id {
+            // A record goes; a claim that its job may still need once the job has ended (or
+            // has no record) or after a day; temporary files left by a crash at once.
+            let remove = match name.strip_suffix(".claim") {
                 Some(id) => {
                     age >= STALE
                         || self
-                            .read(id)
+                            .read_aged(id)
                             .ok()
                             .flatten()
-                            .is_none_or(|j| j.state.is_finished())
+                            .is_none_or(|(j, age)| j.state.is_finished() || age >= JOB_TTL)
                 }
                 None => true,
             };

@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore};
 
 use super::errors::{ApiError, ErrorKind};
-use super::job_records::{Claim, JobRecords};
+use super::job_records::{Claim, JobRecords, LOST_AFTER};
 use crate::model::validate::ValidationReport;
 
 /// How long a finished job stays visible.
@@ -334,17 +334,49 @@ impl Jobs {
         self.recorded(id)?.ok_or_else(|| unknown(id))
     }
 
-    /// The models folder's record of job `id`, if any.
+    /// The models folder's record of job `id`, if any; a queued or running job whose record
+    /// its replica stopped touching as failed ([`lost`]).
     fn recorded(&self, id: &str) -> Result<Option<Job>, ApiError> {
         let Some(records) = &self.records else {
             return Ok(None);
         };
-        records.read(id).map_err(|e| {
+        let read = records.read_aged(id).map_err(|e| {
             ApiError::new(
                 ErrorKind::Internal,
                 format!("could not read the record of job {id} in the models folder: {e}"),
             )
-        })
+        })?;
+        Ok(read.map(|(job, age)| {
+            if !job.state.is_finished() && age >= LOST_AFTER {
+                lost(job, age)
+            } else {
+                job
+            }
+        }))
+    }
+
+    /// Touches the records of this replica's queued and running jobs, so that the other
+    /// replicas know they are alive ([`super::job_records::HEARTBEAT`]); a record that has gone
+    /// (swept, or never written) is written again.
+    pub fn heartbeat(&self) {
+        let Some(records) = &self.records else {
+            return;
+        };
+        let live: Vec<String> = self
+            .table()
+            .iter()
+            .filter(|(_, e)| !e.job.state.is_finished())
+            .map(|(id, _)| id.clone())
+            .collect();
+        for id in live {
+            let touched = off_the_workers(|| records.touch(&id));
+            match touched {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => self.persist(&id, true),
+                Err(err) => tracing::warn!(job = id, %err, "could not touch the job's record: \
+                    other replicas will take the job as lost within a minute"),
+            }
+        }
     }
 
     /// Changes a job (and its `updated` time); a finished job starts its time to live. A job
@@ -583,6 +615,26 @@ fn change(e: &mut Entry, f: impl FnOnce(&mut Job)) {
 }
 
 /// Ok if `job` can still be cancelled, else the 409 that says why not.
+/// A recorded job whose replica has not touched its record for `age`: failed, as far as the
+/// other replicas can tell, and saying why.
+fn lost(mut job: Job, age: Duration) -> Job {
+    job.error = Some(format!(
+        "replica {} stopped without ending this job (killed, out of memory, or cut off from the \
+         models folder): its record was last updated {} s ago, while it was {}; send the upload \
+         again",
+        if job.replica.is_empty() {
+            "(unnamed)"
+        } else {
+            &job.replica
+        },
+        age.as_secs(),
+        job.stage.map_or(job.state.name(), JobStage::name),
+    ));
+    job.state = JobState::Failed;
+    job.stage = None;
+    job
+}
+
 fn cancellable(job: &Job) -> Result<(), ApiError> {
     let id = &job.id;
     match (job.state, job.stage) {
@@ -858,6 +910,54 @@ mod tests {
     }
 
     #[test]
+    fn a_job_whose_replica_stopped_touching_it_is_lost_to_the_others() {
+        let dir = records_dir("lost");
+        let replica =
+            |name: &str| Jobs::shared(4, Some(JobRecords::new(&dir, name.into())), name.into());
+        let (a, b) = (replica("a"), replica("b"));
+        let job = a.create("m", "shapes", 10, true, None).unwrap();
+        assert!(a.stage(&job.id, JobStage::Training, 0.3));
+        let record = dir.join(".jobs").join(format!("{}.json", job.id));
+        let age = |by: Duration| {
+            let f = std::fs::File::options().write(true).open(&record).unwrap();
+            f.set_modified(std::time::SystemTime::now() - by).unwrap();
+        };
+        // Under a minute without a touch: alive.
+        age(LOST_AFTER - Duration::from_secs(5));
+        assert_eq!(b.get(&job.id).unwrap().state, JobState::Running);
+        // Past it: failed to the others, saying why, and not cancellable.
+        age(LOST_AFTER + Duration::from_secs(5));
+        let seen = b.get(&job.id).unwrap();
+        assert_eq!((seen.state, seen.stage), (JobState::Failed, None));
+        let why = seen.error.unwrap();
+        assert!(
+            why.contains("replica a stopped without ending this job") && why.contains("training"),
+            "{why}"
+        );
+        let e = b.cancel(&job.id).unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Conflict, "{e}");
+        assert!(!dir.join(".jobs").join(format!("{}.claim", job.id)).exists());
+        // Its own replica still runs it; its heartbeat makes it alive again to the others.
+        assert_eq!(a.get(&job.id).unwrap().state, JobState::Running);
+        a.heartbeat();
+        assert_eq!(b.get(&job.id).unwrap().state, JobState::Running);
+        // A record that has gone is written again by the heartbeat; ended jobs are left alone.
+        std::fs::remove_file(&record).unwrap();
+        a.heartbeat();
+        assert_eq!(b.get(&job.id).unwrap().stage, Some(JobStage::Training));
+        a.succeed(&job.id);
+        age(LOST_AFTER + Duration::from_secs(5));
+        a.heartbeat();
+        assert_eq!(b.get(&job.id).unwrap().state, JobState::Succeeded);
+        let (_, untouched) = JobRecords::new(&dir, "b".into())
+            .read_aged(&job.id)
+            .unwrap()
+            .unwrap();
+        assert!(untouched >= LOST_AFTER, "{untouched:?}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
     fn old_records_are_swept_when_a_job_is_created() {
         let dir = records_dir("sweep");
         let jobs = Jobs::shared(4, Some(JobRecords::new(&dir, "a".into())), "a".into());
@@ -882,17 +982,32 @@ mod tests {
             file(format!("{}.claim", running.id)),
             JOB_TTL + Duration::from_secs(60),
         );
-        // Over the time to live: the finished job's record goes, the running one's and its
-        // pending claim stay until they are a day old.
+        // A job whose replica died an hour ago, with a cancel asked then too.
+        let lost = jobs.create("m", "shapes", 10, true, None).unwrap();
+        assert!(jobs.stage(&lost.id, JobStage::Training, 0.3));
+        claims.claim(&lost.id, Claim::Cancel).unwrap();
+        aged(
+            file(format!("{}.claim", lost.id)),
+            JOB_TTL + Duration::from_secs(60),
+        );
+        // Over the time to live: the finished job's record goes, and the lost one's with its
+        // claim; the running job's record (touched by its heartbeat) and its pending claim
+        // stay, until the claim is a day old.
         age(&done.id, JOB_TTL + Duration::from_secs(60));
-        age(&running.id, JOB_TTL + Duration::from_secs(60));
+        age(&lost.id, JOB_TTL + Duration::from_secs(60));
         let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
         assert!(!record(&done.id).exists());
+        assert!(!record(&lost.id).exists());
+        assert_eq!(claims.claimed(&lost.id), None);
         assert!(record(&running.id).exists());
         assert_eq!(claims.claimed(&running.id), Some(Claim::Cancel));
-        age(&running.id, Duration::from_secs(25 * 3600));
+        aged(
+            file(format!("{}.claim", running.id)),
+            Duration::from_secs(25 * 3600),
+        );
         let _ = jobs.create("m", "shapes", 10, true, None).unwrap();
-        assert!(!record(&running.id).exists());
+        assert!(record(&running.id).exists());
+        assert_eq!(claims.claimed(&running.id), None);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -210,6 +210,16 @@ pub async fn serve(cfg: Config, started: Instant) -> Result<(), ServeError> {
         streams: Arc::new(Semaphore::new(cfg.limits.max_streams)),
         openapi: http::openapi_json(),
     });
+    // The other replicas take a job whose record is not touched for a minute as lost.
+    let beating = state.clone();
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(job_records::HEARTBEAT);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            beating.jobs.heartbeat();
+        }
+    });
 
     // Routers: gRPC from an empty axum router (tonic's default fallback would answer unknown
     // REST paths with gRPC errors), merged with the HTTP API, one fallback for both.
