@@ -7,6 +7,9 @@
 //!   out encoded in advance and of each result only whether each face got a pose is read
 //!   ([`LightCodec`]): the generator shares the server's cores, and what it spends is taken
 //!   from the server's measure.
+//! - `loadgen ceiling BODY`: the server's own batch work (`http::answer_batch`: parse,
+//!   estimate, serialize) on a `POST /v1/pose:batch` body, on T threads with no network and no
+//!   server; prints faces/s, the most any server could answer on this machine at that moment.
 //! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
 //!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
 //!
@@ -40,6 +43,7 @@ struct Args {
     batch: usize,
     dir: String,
     packed: bool,
+    threads: usize,
 }
 
 fn parse_args() -> Args {
@@ -55,6 +59,7 @@ fn parse_args() -> Args {
         batch: 1000,
         dir: ".".into(),
         packed: false,
+        threads: 2,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -71,8 +76,9 @@ fn parse_args() -> Args {
             "--method" => a.method = v(),
             "--batch" => a.batch = v().parse().expect("--batch N"),
             "--packed" => a.packed = true,
+            "--threads" => a.threads = v().parse().expect("--threads N"),
             c if a.cmd.is_empty() => a.cmd = c.to_string(),
-            d if a.cmd == "bodies" => a.dir = d.to_string(),
+            d if a.cmd == "bodies" || a.cmd == "ceiling" => a.dir = d.to_string(),
             other => panic!("unknown argument {other}"),
         }
     }
@@ -211,6 +217,60 @@ impl Decoder for Outcomes {
     }
 }
 
+/// `loadgen ceiling`: [`facepose::service::http::answer_batch`] on one body, over and over on
+/// `a.threads` threads for `a.duration`, after a warm-up.
+fn ceiling(a: &Args) {
+    use facepose::service::config::Limits;
+    let body = prost::bytes::Bytes::from(std::fs::read(&a.dir).expect("the batch body"));
+    let set = facepose::service::registry::load_models(None).expect("the default models");
+    let limits = Limits {
+        max_batch: usize::MAX,
+        max_body: usize::MAX,
+        request_timeout: Duration::from_secs(3600),
+        max_concurrency: 1,
+        max_streams: 1,
+        max_upload: 0,
+        upload_timeout: Duration::from_secs(1),
+    };
+    let answer = |b: &Bytes| {
+        facepose::service::http::answer_batch(b.clone(), &set, limits, None)
+            .unwrap_or_else(|e| panic!("the body is refused: {}", e.message))
+    };
+    let first: serde_json::Value = serde_json::from_slice(&answer(&body)).expect("JSON");
+    let faces = first["succeeded"].as_u64().unwrap_or(0) + first["failed"].as_u64().unwrap_or(0);
+    let warm = Instant::now() + Duration::from_millis(500);
+    while Instant::now() < warm {
+        answer(&body);
+    }
+    let start = Instant::now();
+    let until = start + a.duration;
+    let bodies = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..a.threads.max(1))
+            .map(|_| {
+                s.spawn(|| {
+                    let mut n = 0u64;
+                    while Instant::now() < until {
+                        std::hint::black_box(answer(&body));
+                        n += 1;
+                    }
+                    n
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .map(|w| w.join().expect("worker"))
+            .sum::<u64>()
+    });
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "threads {} faces/body {faces}: {:.0} faces/s, {:.2} µs of thread time a face",
+        a.threads.max(1),
+        (bodies * faces) as f64 / secs,
+        secs * a.threads.max(1) as f64 * 1e6 / (bodies * faces) as f64
+    );
+}
+
 /// One stream: returns (poses, per-frame latencies).
 async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
     let channel = tonic::transport::Endpoint::from_shared(a.addr.clone())
@@ -320,6 +380,7 @@ fn main() {
     let a = parse_args();
     match a.cmd.as_str() {
         "bodies" => bodies(&a),
+        "ceiling" => ceiling(&a),
         "stream" => tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .enable_all()
@@ -327,7 +388,7 @@ fn main() {
             .expect("runtime")
             .block_on(stream(a)),
         _ => eprintln!(
-            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]"
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
         ),
     }
 }

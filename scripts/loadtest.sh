@@ -7,7 +7,8 @@
 # Installs wrk and h2load (Debian nghttp2-client) if missing, builds the release binary and our
 # gRPC stream load generator (examples/loadgen.rs), starts the server on a free loopback port,
 # and measures: time to ready, resident memory, /healthz, then for each workload (scheme:method)
-# one pose (HTTP), a batch (HTTP), gRPC unary (h2load with a pre-encoded frame) and gRPC streams
+# one pose (HTTP), a batch (HTTP) and its ceiling (the same work in one process, no network),
+# gRPC unary (h2load with a pre-encoded frame) and gRPC streams
 # (loadgen). Load generators run on the same machine and share its cores with the server.
 # docs/performance-notes.md, if present, is appended (the analysis). Not part of CI.
 set -euo pipefail
@@ -113,6 +114,11 @@ for w in $WORKLOADS; do
     echo "== $w: wrk POST /v1/pose:batch ($BATCH faces)"
     read -r B_RPS B_P50 B_P99 B_BAD B_CPU < <(run_wrk 4 /v1/pose:batch "$D/batch.json")
     B_CPU=$(python3 -c "print(f'{$B_CPU / $BATCH:.2f}')")
+    # The same body's work in one process, no network, right after: what bounds the batch.
+    echo "== $w: loadgen ceiling ($BATCH faces)"
+    CEIL_LINE=$("$LOADGEN" ceiling "$D/batch.json" --threads "$(nproc)" --duration "$DURATION")
+    C_FPS=$(echo "$CEIL_LINE" | sed -E 's/.*: ([0-9]+) faces\/s.*/\1/')
+    C_US=$(echo "$CEIL_LINE" | sed -E 's/.*, ([0-9.]+) µs.*/\1/')
     echo "== $w: h2load gRPC Estimate"
     OK0=$(grpc_ok); OK0=${OK0:-0}; rm -f "$WORK/h2.log"
     h2load -D "$DURATION" -c 4 -m 16 -t 1 \
@@ -145,6 +151,7 @@ for w in $WORKLOADS; do
 |---|---|---|---|---|---|---|
 | \`POST /v1/pose\` | wrk, $CONNS connections | $P_RPS req/s (**${RATIO}%** of /healthz) | $P_CPU µs / request | $P_P50 ms | $P_P99 ms | ≥ 80% of /healthz: $(pass "$P_RPS >= 0.8 * $H_RPS") |
 | \`POST /v1/pose:batch\`, $BATCH faces | wrk, 4 connections | $B_RPS req/s = **$BATCH_PPS poses/s** | $B_CPU µs / pose | $B_P50 ms | $B_P99 ms | ≥ 200k poses/s: $(pass "$BATCH_PPS >= 200000") |
+| the batch's ceiling: its work alone (\`http::answer_batch\`, no network, no server) | loadgen ceiling, $(nproc) threads | $C_FPS faces/s | $C_US µs / face | | | the batch is at $(python3 -c "print(f'{$BATCH_PPS / $C_FPS * 100:.0f}')")% of it |
 | gRPC \`Estimate\` | h2load, 4 connections × 16 streams | $G_RPS req/s ($G_OK OK, $G_N answered) | | $G_P50 ms | $G_P99 ms | |
 $STREAM_ROWS
 Non-2xx HTTP responses: /v1/pose $P_BAD, batch $B_BAD.
@@ -187,6 +194,7 @@ h2load -D $DURATION -c 4 -m 16 -t 1 -H 'content-type: application/grpc' -H 'te: 
   -d estimate.grpc http://127.0.0.1:PORT/facepose.v1.PoseService/Estimate
 target/release/examples/loadgen stream --addr http://127.0.0.1:PORT --streams 8 --faces 4 --window 8 \\
   --duration $DURATION --scheme SCHEME --method METHOD [--packed]
+target/release/examples/loadgen ceiling batch.json --threads $(nproc) --duration $DURATION   # right after the batch run
 \`\`\`
 
 The bodies come from \`target/release/examples/loadgen bodies DIR --scheme SCHEME --method METHOD --batch $BATCH\`.

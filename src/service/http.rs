@@ -20,6 +20,7 @@ use tracing::Instrument;
 use utoipa::{OpenApi, ToSchema};
 
 use super::AppState;
+use super::config::Limits;
 use super::errors::{ApiError, ErrorBody, ErrorKind};
 use super::http_registry::{self, BearerAuth};
 use super::http_retrain;
@@ -679,51 +680,63 @@ pub async fn pose_batch(
     let limits = st.limits;
     let inline = bytes.len() <= INLINE_BODY;
     let body = run_maybe_blocking(inline, move || {
-        let req = parse_batch_request(&bytes)?;
-        drop(bytes);
-        if req.faces.len() > limits.max_batch {
-            return Err(ApiError::batch_too_large(req.faces.len(), limits.max_batch));
-        }
-        let model = models.get(req.model.as_deref())?;
-        let mut tally = FaceTally::default();
-        let results = for_each_face(req.faces, Some(deadline.0), |face| {
-            let spec = FaceSpec {
-                landmarks: &face.landmarks.0,
-                scheme: face.scheme.as_deref().or(req.scheme.as_deref()),
-                method: face.method.as_deref().or(req.method.as_deref()),
-                camera: face.camera.or(req.camera).map(Into::into),
-                style: face
-                    .landmark_style
-                    .as_deref()
-                    .or(req.landmark_style.as_deref()),
-            };
-            match estimate_face(model, &spec) {
-                Ok(p) => {
-                    tally.ok(p.record.method);
-                    BatchResult::Pose(BatchPose {
-                        pose: p.record,
-                        scheme: p.scheme,
-                        id: face.id,
-                    })
-                }
-                Err(error) => {
-                    tally.err(error.kind);
-                    BatchResult::Error(BatchError { id: face.id, error })
-                }
-            }
-        })
-        .map_err(|_| ApiError::timeout(limits.request_timeout))?;
-        tally.record("http");
-        to_json(&BatchResponse {
-            model: model.name.clone(),
-            model_version: model.version.clone(),
-            succeeded: tally.succeeded(),
-            failed: tally.failed(),
-            results,
-        })
+        answer_batch(bytes, &models, limits, Some(deadline.0))
     })
     .await??;
     Ok(json_bytes(body))
+}
+
+/// The answer to a `POST /v1/pose:batch` body: parse, estimate each face against `models`
+/// (stopping at `deadline`), serialize. Pure but for the metrics; the handler runs it off the
+/// async workers, and `examples/loadgen.rs ceiling` runs it with no network.
+pub fn answer_batch(
+    bytes: Bytes,
+    models: &ModelSet,
+    limits: Limits,
+    deadline: Option<Instant>,
+) -> Result<Vec<u8>, ApiError> {
+    let req = parse_batch_request(&bytes)?;
+    drop(bytes);
+    if req.faces.len() > limits.max_batch {
+        return Err(ApiError::batch_too_large(req.faces.len(), limits.max_batch));
+    }
+    let model = models.get(req.model.as_deref())?;
+    let mut tally = FaceTally::default();
+    let results = for_each_face(req.faces, deadline, |face| {
+        let spec = FaceSpec {
+            landmarks: &face.landmarks.0,
+            scheme: face.scheme.as_deref().or(req.scheme.as_deref()),
+            method: face.method.as_deref().or(req.method.as_deref()),
+            camera: face.camera.or(req.camera).map(Into::into),
+            style: face
+                .landmark_style
+                .as_deref()
+                .or(req.landmark_style.as_deref()),
+        };
+        match estimate_face(model, &spec) {
+            Ok(p) => {
+                tally.ok(p.record.method);
+                BatchResult::Pose(BatchPose {
+                    pose: p.record,
+                    scheme: p.scheme,
+                    id: face.id,
+                })
+            }
+            Err(error) => {
+                tally.err(error.kind);
+                BatchResult::Error(BatchError { id: face.id, error })
+            }
+        }
+    })
+    .map_err(|_| ApiError::timeout(limits.request_timeout))?;
+    tally.record("http");
+    to_json(&BatchResponse {
+        model: model.name.clone(),
+        model_version: model.version.clone(),
+        succeeded: tally.succeeded(),
+        failed: tally.failed(),
+        results,
+    })
 }
 
 /// The loaded models.
