@@ -614,7 +614,6 @@ fn change(e: &mut Entry, f: impl FnOnce(&mut Job)) {
     }
 }
 
-/// Ok if `job` can still be cancelled, else the 409 that says why not.
 /// A recorded job whose replica has not touched its record for `age`: failed, as far as the
 /// other replicas can tell, and saying why.
 fn lost(mut job: Job, age: Duration) -> Job {
@@ -635,6 +634,7 @@ fn lost(mut job: Job, age: Duration) -> Job {
     job
 }
 
+/// Ok if `job` can still be cancelled, else the 409 that says why not.
 fn cancellable(job: &Job) -> Result<(), ApiError> {
     let id = &job.id;
     match (job.state, job.stage) {
@@ -822,6 +822,12 @@ mod tests {
             .unwrap();
     }
 
+    /// Sets the modification time of `path` to `by` ago: a record or claim left that long.
+    fn set_age(path: &std::path::Path, by: Duration) {
+        let f = std::fs::File::options().write(true).open(path).unwrap();
+        f.set_modified(std::time::SystemTime::now() - by).unwrap();
+    }
+
     /// A fresh folder for the job records of a test.
     fn records_dir(name: &str) -> std::path::PathBuf {
         let dir = std::env::temp_dir().join(format!("facepose-jobs-{name}-{}", std::process::id()));
@@ -918,10 +924,7 @@ mod tests {
         let job = a.create("m", "shapes", 10, true, None).unwrap();
         assert!(a.stage(&job.id, JobStage::Training, 0.3));
         let record = dir.join(".jobs").join(format!("{}.json", job.id));
-        let age = |by: Duration| {
-            let f = std::fs::File::options().write(true).open(&record).unwrap();
-            f.set_modified(std::time::SystemTime::now() - by).unwrap();
-        };
+        let age = |by: Duration| set_age(&record, by);
         // Under a minute without a touch: alive.
         age(LOST_AFTER - Duration::from_secs(5));
         assert_eq!(b.get(&job.id).unwrap().state, JobState::Running);
@@ -967,10 +970,7 @@ mod tests {
         assert!(jobs.stage(&running.id, JobStage::Training, 0.3));
         let file = |name: String| dir.join(".jobs").join(name);
         let record = |id: &str| file(format!("{id}.json"));
-        let aged = |path: std::path::PathBuf, by: Duration| {
-            let f = std::fs::File::options().write(true).open(path).unwrap();
-            f.set_modified(std::time::SystemTime::now() - by).unwrap();
-        };
+        let aged = |path: std::path::PathBuf, by: Duration| set_age(&path, by);
         let age = |id: &str, by: Duration| aged(record(id), by);
         // A cancel asked an hour ago for the running job, not yet acted on.
         let claims = JobRecords::new(&dir, "b".into());
