@@ -15,17 +15,20 @@ use facepose::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose::estimate::{FitOptions, Method, estimate, fit_rigid};
 use facepose::geometry::{EulerAngles, WeakPerspective};
 use facepose::model::default_model;
+use facepose::service::grpc::landmark_messages;
 use facepose::service::http::parse_pose_request;
 use facepose::service::pose::{FaceSpec, estimate_face};
+use facepose::service::proto;
 use facepose::service::registry::load_models;
 use facepose::shape::Shape2;
 use nalgebra::Vector2;
+use prost::Message;
 use rand::{SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 
 /// What can be counted.
-const ENTRIES: [&str; 8] = [
+const ENTRIES: [&str; 10] = [
     "none",
     "fit",
     "fit-shape",
@@ -34,6 +37,8 @@ const ENTRIES: [&str; 8] = [
     "estimate-regression",
     "parse-pose-body",
     "estimate-face-fit",
+    "grpc-decode-landmarks",
+    "grpc-decode-xy",
 ];
 
 fn main() {
@@ -87,6 +92,27 @@ fn main() {
         .as_ref()
         .expect("the default model has a shape basis");
     let rigid = FitOptions::default();
+    // The same face as a gRPC EstimateRequest, its landmarks as messages or packed.
+    let xy: Vec<[f64; 2]> = points.iter().map(|p| [p.x, p.y]).collect();
+    let grpc_face = proto::Face {
+        landmarks: landmark_messages(&xy),
+        scheme: "ibug68".into(),
+        method: "fit".into(),
+        ..Default::default()
+    };
+    let grpc_request = |face: proto::Face| {
+        proto::EstimateRequest {
+            face: Some(face),
+            model: String::new(),
+        }
+        .encode_to_vec()
+    };
+    let with_messages = grpc_request(grpc_face.clone());
+    let packed = grpc_request(proto::Face {
+        landmarks: vec![],
+        xy: xy.iter().flatten().copied().collect(),
+        ..grpc_face
+    });
     // Warm the regression's per-pattern cache, as a service is after its first query.
     let _ = estimate(&model, "ibug68", &lm, Method::Regression);
     for _ in 0..calls {
@@ -112,6 +138,12 @@ fn main() {
             "estimate-face-fit" => {
                 drop(black_box(estimate_face(&served, black_box(&spec)).unwrap()))
             }
+            "grpc-decode-landmarks" => drop(black_box(
+                proto::EstimateRequest::decode(black_box(with_messages.as_slice())).unwrap(),
+            )),
+            "grpc-decode-xy" => drop(black_box(
+                proto::EstimateRequest::decode(black_box(packed.as_slice())).unwrap(),
+            )),
             _ => {}
         }
     }

@@ -11,7 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 CALLS=${CALLS:-1000}
 ENTRIES=("$@")
-[ ${#ENTRIES[@]} -eq 0 ] && ENTRIES=(fit fit-shape estimate-fit estimate-auto estimate-regression parse-pose-body estimate-face-fit)
+[ ${#ENTRIES[@]} -eq 0 ] && ENTRIES=(fit fit-shape estimate-fit estimate-auto estimate-regression parse-pose-body estimate-face-fit grpc-decode-landmarks grpc-decode-xy)
 if ! command -v valgrind >/dev/null 2>&1; then
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
     $SUDO apt-get install -y valgrind >/dev/null 2>&1 ||
