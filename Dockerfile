@@ -14,18 +14,23 @@ RUN apt-get update \
  && apt-get install -y --no-install-recommends make=4.3-4.1 \
  && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
-# Dependencies first, so that source edits do not rebuild them.
-COPY Cargo.toml Cargo.lock build.rs ./
+# Dependencies first, so that source edits do not rebuild them: the workspace's manifests with
+# empty targets.
+COPY Cargo.toml Cargo.lock ./
+COPY crates/core/Cargo.toml crates/core/
+COPY crates/files/Cargo.toml crates/files/
+COPY crates/service/Cargo.toml crates/service/build.rs crates/service/
 COPY proto ./proto
-RUN mkdir -p src benches examples \
- && echo 'fn main() {}' > src/main.rs && touch src/lib.rs \
- && for b in hpr estimate service train; do echo 'fn main() {}' > benches/$b.rs; done \
- && echo 'fn main() {}' > examples/loadgen.rs \
+RUN mkdir -p src crates/core/src crates/core/benches crates/files/src crates/service/src crates/service/benches \
+ && echo 'fn main() {}' > src/main.rs \
+ && touch crates/core/src/lib.rs crates/files/src/lib.rs crates/service/src/lib.rs \
+ && for b in hpr estimate train; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \
+ && echo 'fn main() {}' > crates/service/benches/service.rs \
  && cargo build --release --locked --bin facepose || true
 COPY src ./src
+COPY crates ./crates
 COPY models ./models
-COPY assets ./assets
-RUN touch src/main.rs src/lib.rs && cargo build --release --locked --bin facepose
+RUN touch src/main.rs crates/*/src/lib.rs && cargo build --release --locked --bin facepose
 
 FROM debian:bookworm-slim
 RUN apt-get update \

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Instructions per call of the per-face work (examples/instructions.rs) under callgrind: a
+# Instructions per call of the per-face work (crates/service/examples/instructions.rs) under callgrind: a
 # measure that does not move with the machine's load, unlike criterion's times.
 #
 #   scripts/instructions.sh            # every entry, 1000 calls each

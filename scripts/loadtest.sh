@@ -5,7 +5,7 @@
 #   DURATION=20 scripts/loadtest.sh     # longer runs
 #
 # Installs wrk and h2load (Debian nghttp2-client) if missing, builds the release binary and our
-# gRPC stream load generator (examples/loadgen.rs), starts the server on a free loopback port,
+# gRPC stream load generator (crates/service/examples/loadgen.rs), starts the server on a free loopback port,
 # and measures: time to ready, resident memory, /healthz, then for each workload (scheme:method)
 # one pose (HTTP), a batch (HTTP) and its ceiling (the same work in one process, no network),
 # gRPC unary (h2load with a pre-encoded frame) and gRPC streams

@@ -100,7 +100,7 @@ EOF
 EOF
   cmd_block "$sfm_cmd"
   cat docs/results/sfm.md
-  printf '\n## Speed\n\nCriterion, one core: HPR and the estimators on one 68-point face and its five points; training\n(the Procrustes mean, every subset, the ridge parameter chosen on validation faces) on the\npaper'"'"'s set-up and on 10,000 faces drawn from the morphable model (benches/train.rs).\n\n'
+  printf '\n## Speed\n\nCriterion, one core: HPR and the estimators on one 68-point face and its five points; training\n(the Procrustes mean, every subset, the ridge parameter chosen on validation faces) on the\npaper'"'"'s set-up and on 10,000 faces drawn from the morphable model (crates/core/benches/train.rs).\n\n'
   if [ "$bench" = 1 ]; then
     # The figures are the machine's: say which one made them.
     printf 'Measured on: %s, %s cores, %s.\n\n' "$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)" "$(nproc)" "$(date -u +%F)" >docs/results/bench-machine.txt

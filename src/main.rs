@@ -34,7 +34,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Serve HTTP JSON and gRPC on one port (the long-running service).
-    Serve(facepose::service::config::ServeArgs),
+    Serve(facepose_service::config::ServeArgs),
     /// Estimate head pose from landmarks (JSON Lines or CSV) to JSON Lines.
     Estimate(cli::estimate::EstimateArgs),
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
@@ -67,7 +67,7 @@ fn main() -> ExitCode {
             // 2 when a command could not do its work; 3 when the service ran and its drain was
             // cut short.
             let status = e
-                .downcast_ref::<facepose::service::ServeError>()
+                .downcast_ref::<facepose_service::ServeError>()
                 .map_or(2, |e| e.exit_status());
             ExitCode::from(status)
         }

@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
-use facepose::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
-use facepose::record::{Landmarks, PoseRecord, shape_from_points};
-use facepose::shape::Shape2;
+use facepose_core::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
+use facepose_core::record::{Landmarks, PoseRecord, shape_from_points};
+use facepose_core::shape::Shape2;
 use serde::Deserialize;
 use serde_json::{Value, json};
 

@@ -7,18 +7,18 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose::data::{AflwFace, data_dir, load_aflw, load_population};
-use facepose::estimate::Method;
-use facepose::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
-use facepose::eval::paper::{
+use facepose_core::estimate::Method;
+use facepose_core::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
+use facepose_core::eval::paper::{
     PaperOptions, default_entries, paper_markdown, paper_protocol, robustness_markdown,
     train_paper_model,
 };
-use facepose::eval::paper::{PaperReport, Perturbation};
-use facepose::eval::plot::{
+use facepose_core::eval::paper::{PaperReport, Perturbation};
+use facepose_core::eval::plot::{
     LandmarkPanel, Panel, Series, heat_maps_png, landmarks_png, line_chart_png,
 };
-use facepose::shape::Scheme;
+use facepose_core::shape::Scheme;
+use facepose_files::data::{AflwFace, data_dir, load_aflw, load_population};
 
 use super::CliError;
 
@@ -236,7 +236,7 @@ fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), 
         per_pose = test.len() as f64 / opts.stride as f64,
         table = paper_markdown(&paper),
         samples = opts.robustness_samples,
-        cap = facepose::eval::paper::MAX_MISSING_FIVE,
+        cap = facepose_core::eval::paper::MAX_MISSING_FIVE,
         robust = robustness_markdown(&paper),
     );
     Ok((text, paper))

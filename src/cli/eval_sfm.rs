@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use facepose::data::{data_dir, load_population};
-use facepose::eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
-use facepose::shape::ibug68;
+use facepose_core::eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
+use facepose_core::shape::ibug68;
+use facepose_files::data::{data_dir, load_population};
 
 use super::CliError;
 

@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use facepose::data::{data_dir, load_canonical_mesh};
-use facepose::eval::hpr_table::{hpr_markdown, hpr_table};
-use facepose::hpr::KatzHpr;
-use facepose::synth::AngleRange;
+use facepose_core::eval::hpr_table::{hpr_markdown, hpr_table};
+use facepose_core::hpr::KatzHpr;
+use facepose_core::synth::AngleRange;
+use facepose_files::data::{data_dir, load_canonical_mesh};
 
 use super::CliError;
 

@@ -14,9 +14,15 @@ pub type CliError = Box<dyn std::error::Error + Send + Sync>;
 /// The model of `--model DIR`, or the embedded default model.
 pub fn load_model(
     dir: Option<&std::path::Path>,
-) -> Result<(facepose::model::bundle::Bundle, facepose::model::PoseModel), CliError> {
+) -> Result<
+    (
+        facepose_core::model::bundle::Bundle,
+        facepose_core::model::PoseModel,
+    ),
+    CliError,
+> {
     match dir {
-        Some(d) => Ok(facepose::model::store::load_model(d)?),
-        None => Ok(facepose::model::default_model()?),
+        Some(d) => Ok(facepose_files::store::load_model(d)?),
+        None => Ok(facepose_core::model::default_model()?),
     }
 }

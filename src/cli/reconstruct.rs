@@ -5,10 +5,10 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use clap::Args;
-use facepose::data::load_multi_view;
-use facepose::geometry::EulerAngles;
-use facepose::sfm::{SfmOptions, reconstruct};
-use facepose::shape::{Scheme, Shape2, Shape3};
+use facepose_core::geometry::EulerAngles;
+use facepose_core::sfm::{SfmOptions, reconstruct};
+use facepose_core::shape::{Scheme, Shape2, Shape3};
+use facepose_files::data::load_multi_view;
 use serde_json::json;
 
 use super::CliError;

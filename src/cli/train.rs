@@ -5,12 +5,12 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose::data::{load_morphable_model, load_multi_view, load_population};
-use facepose::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
-use facepose::model::store::write_bundle_dir;
-use facepose::model::{BasisSource, RegressionParams, TrainOptions, train_from_population};
-use facepose::sfm::{SfmOptions, reconstruct};
-use facepose::shape::{Scheme, Shape2};
+use facepose_core::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
+use facepose_core::model::{BasisSource, RegressionParams, TrainOptions, train_from_population};
+use facepose_core::sfm::{SfmOptions, reconstruct};
+use facepose_core::shape::{Scheme, Shape2};
+use facepose_files::data::{load_morphable_model, load_multi_view, load_population};
+use facepose_files::store::write_bundle_dir;
 use nalgebra::Vector3;
 
 use super::CliError;

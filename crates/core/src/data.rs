@@ -1,0 +1,154 @@
+//! The formats of the data files the project develops and tests with (`../shared/data/`): the
+//! bfm68 populations and morphable model, MediaPipe's canonical mesh, the AFLW2000-3D JSON
+//! Lines, and the multi-view sets of `facepose reconstruct`. Text in, values out: reading the
+//! files is `facepose_files::data`'s.
+
+use nalgebra::Vector3;
+use serde::Deserialize;
+
+pub use crate::model::basis::MorphableModel;
+
+fn parse<T: for<'de> Deserialize<'de>>(text: &str) -> Result<T, String> {
+    serde_json::from_str(text).map_err(|e| e.to_string())
+}
+
+fn to_vectors(points: &[[f64; 3]]) -> Vec<Vector3<f64>> {
+    points.iter().map(|p| Vector3::from(*p)).collect()
+}
+
+/// A set of 3D shapes in one scheme (`population_*.json`).
+#[derive(Debug, Clone)]
+pub struct Population {
+    pub scheme: String,
+    pub shapes: Vec<Vec<Vector3<f64>>>,
+}
+
+/// A population file's text: `{"scheme": ..., "shapes": [[[x, y, z], ...], ...]}`.
+pub fn parse_population(text: &str) -> Result<Population, String> {
+    #[derive(Deserialize)]
+    struct Raw {
+        scheme: String,
+        shapes: Vec<Vec<[f64; 3]>>,
+    }
+    let raw: Raw = parse(text)?;
+    Ok(Population {
+        scheme: raw.scheme,
+        shapes: raw.shapes.iter().map(|s| to_vectors(s)).collect(),
+    })
+}
+
+/// The morphable model file's text (`bfm68/morphable_model.json`).
+pub fn parse_morphable_model(text: &str) -> Result<MorphableModel, String> {
+    #[derive(Deserialize)]
+    struct Raw {
+        mean: Vec<[f64; 3]>,
+        shape_basis: Vec<Vec<[f64; 3]>>,
+        shape_coef_mean: Vec<f64>,
+        expression_basis: Vec<Vec<[f64; 3]>>,
+        expression_coef_mean: Vec<f64>,
+    }
+    let raw: Raw = parse(text)?;
+    Ok(MorphableModel {
+        mean: to_vectors(&raw.mean),
+        shape_basis: raw.shape_basis.iter().map(|b| to_vectors(b)).collect(),
+        shape_coef_mean: raw.shape_coef_mean,
+        expression_basis: raw.expression_basis.iter().map(|b| to_vectors(b)).collect(),
+        expression_coef_mean: raw.expression_coef_mean,
+    })
+}
+
+/// MediaPipe's canonical face mesh with the ibug68 mapping.
+#[derive(Debug, Clone)]
+pub struct CanonicalMesh {
+    pub vertices: Vec<Vector3<f64>>,
+    pub triangles: Vec<[usize; 3]>,
+    /// ibug68 point i = mean of these mesh vertices.
+    pub ibug68: Vec<Vec<usize>>,
+}
+
+/// The text of `canonical_face_468.json`.
+pub fn parse_canonical_mesh(text: &str) -> Result<CanonicalMesh, String> {
+    #[derive(Deserialize)]
+    struct Mapping {
+        indices: Vec<Vec<usize>>,
+    }
+    #[derive(Deserialize)]
+    struct Raw {
+        vertices: Vec<[f64; 3]>,
+        triangles: Vec<[usize; 3]>,
+        ibug68_from_mediapipe: Mapping,
+    }
+    let raw: Raw = parse(text)?;
+    Ok(CanonicalMesh {
+        vertices: to_vectors(&raw.vertices),
+        triangles: raw.triangles,
+        ibug68: raw.ibug68_from_mediapipe.indices,
+    })
+}
+
+/// One face of the AFLW2000-3D JSON Lines.
+#[derive(Debug, Clone, Deserialize)]
+pub struct AflwFace {
+    pub image: String,
+    pub pitch: f64,
+    pub yaw: f64,
+    pub roll: f64,
+    pub rotation: [[f64; 3]; 3],
+    pub within_99: bool,
+    pub landmarks_fitted: Vec<[f64; 2]>,
+    pub landmarks_reannotated: Vec<[f64; 2]>,
+}
+
+/// JSON Lines of faces (blank lines skipped); errors name the line.
+pub fn parse_aflw(text: &str) -> Result<Vec<AflwFace>, String> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).map_err(|e| format!("line {}: {e}", i + 1)))
+        .collect()
+}
+
+/// One subject's views in a multi-view file.
+#[derive(Debug, Clone, Deserialize)]
+pub struct SubjectViews {
+    /// Echoed in the output.
+    #[serde(default)]
+    pub id: Option<serde_json::Value>,
+    /// Each view: one `[x, y]` (image pixels, y down) or `null` per point of the scheme.
+    pub views: Vec<Vec<Option<[f64; 2]>>>,
+}
+
+/// A multi-view file: `{"scheme": "ibug68", "views": [...]}` for one subject, or
+/// `{"scheme": "ibug68", "subjects": [{"id": ..., "views": [...]}, ...]}` for several.
+#[derive(Debug, Clone)]
+pub struct MultiViewSet {
+    pub scheme: String,
+    pub subjects: Vec<SubjectViews>,
+}
+
+/// A multi-view file's text.
+pub fn parse_multi_view(text: &str) -> Result<MultiViewSet, String> {
+    #[derive(Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Raw {
+        #[serde(default = "default_scheme")]
+        scheme: String,
+        #[serde(default)]
+        views: Option<Vec<Vec<Option<[f64; 2]>>>>,
+        #[serde(default)]
+        subjects: Option<Vec<SubjectViews>>,
+    }
+    fn default_scheme() -> String {
+        "ibug68".into()
+    }
+    let raw: Raw = parse(text)?;
+    let subjects = match (raw.views, raw.subjects) {
+        (Some(views), None) => vec![SubjectViews { id: None, views }],
+        (None, Some(s)) => s,
+        _ => return Err("give exactly one of \"views\" (one subject) or \"subjects\"".into()),
+    };
+    Ok(MultiViewSet {
+        scheme: raw.scheme,
+        subjects,
+    })
+}

@@ -1,0 +1,159 @@
+//! A pose model: everything the estimators need for one landmark scheme, trained from a mean
+//! 3D shape or a population (`train.rs`, `basis.rs`), and its bundle format (`bundle.rs`);
+//! bundles on disk are `facepose_files::store`'s.
+//!
+//! A model serves its own scheme and the sub-schemes it was trained for: for `ibug68`, also
+//! `inner51` (points 17-67) and `five` (anchor means).
+
+pub mod basis;
+pub mod bundle;
+pub mod packed_bits;
+pub mod train;
+pub mod validate;
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::estimate::geometric::GeometryConstants;
+use crate::estimate::morph_fit::MorphableBasis;
+use crate::estimate::regression::RegressionModel;
+use crate::estimate::visibility_map::VisibilityMap;
+use crate::hpr::PaperHpr;
+use crate::shape::{Scheme, Shape2};
+
+pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_population};
+
+/// How a sub-scheme's points come from the model scheme's points.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SubsetMap {
+    /// The model's own scheme: point `k` is point `k`.
+    Own,
+    /// Point `k` of the subset is point `indices[k]` of the model.
+    Indices(Vec<usize>),
+    /// The subset is `five`: each point is the mean of one anchor's points.
+    Anchors,
+}
+
+impl SubsetMap {
+    /// The subset's 3D points from the model's.
+    pub fn map_points(&self, scheme: &Scheme, pts: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        match self {
+            SubsetMap::Own => pts.to_vec(),
+            SubsetMap::Indices(idx) => idx.iter().map(|&i| pts[i]).collect(),
+            SubsetMap::Anchors => scheme
+                .anchors
+                .as_array()
+                .iter()
+                .map(|a| a.iter().map(|&i| pts[i]).sum::<Vector3<f64>>() / a.len() as f64)
+                .collect(),
+        }
+    }
+
+    /// Marks in `out` the subset's points hidden under the model's visibility `vis` (an anchor is
+    /// hidden when all its points are); allocation-free.
+    pub fn hidden_into(&self, scheme: &Scheme, vis: &[bool], out: &mut [bool]) {
+        match self {
+            SubsetMap::Own => {
+                for (o, &v) in out.iter_mut().zip(vis) {
+                    *o = !v;
+                }
+            }
+            SubsetMap::Indices(idx) => {
+                for (o, &i) in out.iter_mut().zip(idx) {
+                    *o = !vis[i];
+                }
+            }
+            SubsetMap::Anchors => {
+                for (o, a) in out.iter_mut().zip(scheme.anchors.as_array()) {
+                    *o = !a.iter().any(|&i| vis[i]);
+                }
+            }
+        }
+    }
+
+    /// The subset's visibility from the model's: an anchor is visible if any of its points is.
+    pub fn map_visibility(&self, scheme: &Scheme, vis: &[bool]) -> Vec<bool> {
+        match self {
+            SubsetMap::Own => vis.to_vec(),
+            SubsetMap::Indices(idx) => idx.iter().map(|&i| vis[i]).collect(),
+            SubsetMap::Anchors => scheme
+                .anchors
+                .as_array()
+                .iter()
+                .map(|a| a.iter().any(|&i| vis[i]))
+                .collect(),
+        }
+    }
+}
+
+/// One scheme the model answers for.
+#[derive(Debug)]
+pub struct Subset {
+    pub scheme: Scheme,
+    pub map: SubsetMap,
+    /// The mean shape's points in this scheme.
+    pub mean: Vec<Vector3<f64>>,
+    pub regression: RegressionModel,
+}
+
+/// A trained pose model.
+#[derive(Debug)]
+pub struct PoseModel {
+    pub scheme: Scheme,
+    /// Frontal mean shape, model frame, mm, centred.
+    pub mean: Vec<Vector3<f64>>,
+    pub hpr: PaperHpr,
+    pub visibility: VisibilityMap,
+    pub geometry: GeometryConstants,
+    /// Subset 0 is the model's own scheme.
+    pub subsets: Vec<Subset>,
+    pub morph: Option<MorphableBasis>,
+}
+
+impl PoseModel {
+    /// The subset serving `scheme_name`, with a message listing the known ones.
+    pub fn subset(&self, scheme_name: &str) -> Result<&Subset> {
+        self.subsets
+            .iter()
+            .find(|s| s.scheme.name == scheme_name)
+            .ok_or_else(|| Error::InvalidScheme {
+                scheme: scheme_name.into(),
+                reason: format!(
+                    "this model serves {}",
+                    self.subsets
+                        .iter()
+                        .map(|s| s.scheme.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            })
+    }
+
+    /// The model's landmarks expanded from a subset's (missing where the subset has no point).
+    pub fn expand(&self, subset: &Subset, shape: &Shape2) -> Option<Shape2> {
+        match &subset.map {
+            SubsetMap::Own => Some(shape.clone()),
+            SubsetMap::Indices(idx) => {
+                let mut pts = vec![None; self.scheme.len()];
+                for (k, &i) in idx.iter().enumerate() {
+                    pts[i] = shape.get(k).map(|p| [p.x, p.y]);
+                }
+                Shape2::from_options(&pts).ok()
+            }
+            SubsetMap::Anchors => None,
+        }
+    }
+}
+
+/// The default model's bundle text (built by `facepose train` from ../shared/data/bfm68; see
+/// models/README.md), embedded so that the binary runs without the models folder.
+pub const DEFAULT_BUNDLE: &str = include_str!("../../../../models/default/model.json");
+
+/// Parses, validates and builds the embedded default model.
+pub fn default_model() -> std::result::Result<(bundle::Bundle, PoseModel), bundle::BundleError> {
+    let b = bundle::Bundle::parse(DEFAULT_BUNDLE)?;
+    let m = b.load()?;
+    Ok((b, m))
+}

@@ -1,0 +1,10 @@
+//! Landmark schemes and 2D/3D shapes.
+
+pub mod scheme;
+pub mod shapes;
+
+pub use scheme::{Anchors, Scheme, five, ibug68, inner51};
+pub use shapes::{Shape2, Shape3, normalized_vector};
+
+/// A 3D point of a shape: model frame, mm.
+pub type Point3 = nalgebra::Vector3<f64>;

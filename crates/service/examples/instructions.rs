@@ -1,0 +1,150 @@
+//! The per-face work of the estimators and of the service's JSON path, repeated, for counting
+//! instructions under callgrind: a machine-independent measure (the same count on a busy or a
+//! quiet machine), next to criterion's times. `scripts/instructions.sh` runs each entry and
+//! prints instructions per call (the run's total minus a run that does no calls, over the calls).
+//!
+//! ```sh
+//! cargo build --release --example instructions
+//! valgrind --tool=callgrind target/release/examples/instructions fit 1000
+//! ```
+//!
+//! The face is the one of benches/estimate.rs: the default model's mean at yaw 25°, pitch -10°,
+//! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision.
+
+use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
+use facepose_core::estimate::{FitOptions, Method, estimate, fit_rigid};
+use facepose_core::geometry::{EulerAngles, WeakPerspective};
+use facepose_core::model::default_model;
+use facepose_core::shape::Shape2;
+use facepose_service::grpc::landmark_messages;
+use facepose_service::http::parse_pose_request;
+use facepose_service::pose::{FaceSpec, estimate_face};
+use facepose_service::proto;
+use facepose_service::registry::load_models;
+use nalgebra::Vector2;
+use prost::Message;
+use rand::{SeedableRng, rngs::StdRng};
+use rand_distr::{Distribution, Normal};
+use std::hint::black_box;
+
+/// What can be counted.
+const ENTRIES: [&str; 10] = [
+    "none",
+    "fit",
+    "fit-shape",
+    "estimate-fit",
+    "estimate-auto",
+    "estimate-regression",
+    "parse-pose-body",
+    "estimate-face-fit",
+    "grpc-decode-landmarks",
+    "grpc-decode-xy",
+];
+
+fn main() {
+    let usage = || {
+        eprintln!("usage: instructions <{}> CALLS", ENTRIES.join("|"));
+        std::process::exit(2)
+    };
+    let mut args = std::env::args().skip(1);
+    let (Some(what), Some(calls)) = (args.next(), args.next()) else {
+        usage()
+    };
+    let Ok(calls) = calls.parse::<usize>() else {
+        usage()
+    };
+    if !ENTRIES.contains(&what.as_str()) {
+        usage()
+    }
+    let (_, model) = default_model().expect("the embedded default model loads");
+    let cam = WeakPerspective::new(
+        EulerAngles::new(25.0, -10.0, 5.0).unwrap().to_rotation(),
+        1.8,
+        Vector2::new(225.0, -225.0),
+    )
+    .unwrap();
+    let mut rng = StdRng::seed_from_u64(1);
+    let noise = Normal::new(0.0, 1.2).unwrap();
+    let points: Vec<Vector2<f64>> = model
+        .mean
+        .iter()
+        .map(|x| cam.project(x) + Vector2::new(noise.sample(&mut rng), noise.sample(&mut rng)))
+        .collect();
+    let lm = Shape2::full(points.clone()).unwrap();
+    let body = serde_json::json!({
+        "landmarks": points.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>(),
+        "scheme": "ibug68",
+        "method": "fit",
+    })
+    .to_string();
+    let set = load_models(None).expect("the default model set loads");
+    let served = set.get(None).unwrap().clone();
+    let request = parse_pose_request(body.as_bytes()).unwrap();
+    let spec = FaceSpec {
+        landmarks: &request.landmarks.0,
+        scheme: request.scheme.as_deref(),
+        method: request.method.as_deref(),
+        camera: None,
+        style: None,
+    };
+    let basis = model
+        .morph
+        .as_ref()
+        .expect("the default model has a shape basis");
+    let rigid = FitOptions::default();
+    // The same face as a gRPC EstimateRequest, its landmarks as messages or packed.
+    let xy: Vec<[f64; 2]> = points.iter().map(|p| [p.x, p.y]).collect();
+    let grpc_face = proto::Face {
+        landmarks: landmark_messages(&xy),
+        scheme: "ibug68".into(),
+        method: "fit".into(),
+        ..Default::default()
+    };
+    let grpc_request = |face: proto::Face| {
+        proto::EstimateRequest {
+            face: Some(face),
+            model: String::new(),
+        }
+        .encode_to_vec()
+    };
+    let with_messages = grpc_request(grpc_face.clone());
+    let packed = grpc_request(proto::Face {
+        landmarks: vec![],
+        xy: xy.iter().flatten().copied().collect(),
+        ..grpc_face
+    });
+    // Warm the regression's per-pattern cache, as a service is after its first query.
+    let _ = estimate(&model, "ibug68", &lm, Method::Regression);
+    for _ in 0..calls {
+        match what.as_str() {
+            "fit" => drop(black_box(
+                fit_rigid(black_box(&model.mean), black_box(&lm), &[], None, rigid).unwrap(),
+            )),
+            "fit-shape" => drop(black_box(
+                fit_morphable(basis, black_box(&lm), &[], None, MorphOptions::default()).unwrap(),
+            )),
+            "estimate-fit" => drop(black_box(
+                estimate(&model, "ibug68", black_box(&lm), Method::Fit).unwrap(),
+            )),
+            "estimate-auto" => drop(black_box(
+                estimate(&model, "ibug68", black_box(&lm), Method::Auto).unwrap(),
+            )),
+            "estimate-regression" => drop(black_box(
+                estimate(&model, "ibug68", black_box(&lm), Method::Regression).unwrap(),
+            )),
+            "parse-pose-body" => drop(black_box(
+                parse_pose_request(black_box(body.as_bytes())).unwrap(),
+            )),
+            "estimate-face-fit" => {
+                drop(black_box(estimate_face(&served, black_box(&spec)).unwrap()))
+            }
+            "grpc-decode-landmarks" => drop(black_box(
+                proto::EstimateRequest::decode(black_box(with_messages.as_slice())).unwrap(),
+            )),
+            "grpc-decode-xy" => drop(black_box(
+                proto::EstimateRequest::decode(black_box(packed.as_slice())).unwrap(),
+            )),
+            _ => {}
+        }
+    }
+}

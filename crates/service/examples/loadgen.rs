@@ -1,0 +1,394 @@
+//! Load generator for `facepose serve` (used by scripts/loadtest.sh; not installed with the
+//! crate):
+//!
+//! - `loadgen stream`: gRPC `EstimateStream` load: S streams, each sending frames of F faces
+//!   and keeping up to W frames in flight; prints poses/s and per-frame latency percentiles.
+//!   Faces carry `Landmark` messages, or with `--packed` the packed `xy` form. The frames go
+//!   out encoded in advance and of each result only whether each face got a pose is read
+//!   ([`LightCodec`]): the generator shares the server's cores, and what it spends is taken
+//!   from the server's measure.
+//! - `loadgen ceiling BODY`: the server's own batch work (`http::answer_batch`: parse,
+//!   estimate, serialize) on a `POST /v1/pose:batch` body, on T threads with no network and no
+//!   server; prints faces/s, the most any server could answer on this machine at that moment.
+//! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
+//!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
+//!
+//! Faces are the default model's mean shape projected at varied poses with 1 px of landmark
+//! noise (seeded), 68 points (`ibug68`) or five (`five`).
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use facepose_core::geometry::{EulerAngles, WeakPerspective};
+use facepose_core::model::{SubsetMap, default_model};
+use facepose_service::grpc::landmark_messages;
+use facepose_service::proto;
+use nalgebra::Vector2;
+use prost::Message;
+use prost::bytes::{BufMut, Bytes};
+use rand::{Rng, SeedableRng, rngs::StdRng};
+use serde_json::json;
+use tokio_stream::StreamExt;
+use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
+
+struct Args {
+    cmd: String,
+    addr: String,
+    streams: usize,
+    faces: usize,
+    window: usize,
+    duration: Duration,
+    scheme: String,
+    method: String,
+    batch: usize,
+    dir: String,
+    packed: bool,
+    threads: usize,
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        cmd: String::new(),
+        addr: "http://127.0.0.1:8080".into(),
+        streams: 8,
+        faces: 4,
+        window: 8,
+        duration: Duration::from_secs(10),
+        scheme: "ibug68".into(),
+        method: "fit".into(),
+        batch: 1000,
+        dir: ".".into(),
+        packed: false,
+        threads: 2,
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(k) = it.next() {
+        let mut v = || it.next().unwrap_or_else(|| panic!("{k} needs a value"));
+        match k.as_str() {
+            "--addr" => a.addr = v(),
+            "--streams" => a.streams = v().parse().expect("--streams N"),
+            "--faces" => a.faces = v().parse().expect("--faces N"),
+            "--window" => a.window = v().parse().expect("--window N"),
+            "--duration" => {
+                a.duration = Duration::from_secs_f64(v().parse().expect("--duration seconds"))
+            }
+            "--scheme" => a.scheme = v(),
+            "--method" => a.method = v(),
+            "--batch" => a.batch = v().parse().expect("--batch N"),
+            "--packed" => a.packed = true,
+            "--threads" => a.threads = v().parse().expect("--threads N"),
+            c if a.cmd.is_empty() => a.cmd = c.to_string(),
+            d if a.cmd == "bodies" || a.cmd == "ceiling" => a.dir = d.to_string(),
+            other => panic!("unknown argument {other}"),
+        }
+    }
+    a
+}
+
+/// `n` faces in `scheme`, image pixels.
+fn faces(n: usize, scheme: &str, seed: u64) -> Vec<Vec<[f64; 2]>> {
+    let (_, model) = default_model().expect("default model");
+    let mut rng = StdRng::seed_from_u64(seed);
+    let points = match scheme {
+        "five" => SubsetMap::Anchors.map_points(&model.scheme, &model.mean),
+        _ => model.mean.clone(),
+    };
+    (0..n)
+        .map(|_| {
+            let a = EulerAngles::new(
+                rng.random_range(-60.0..60.0),
+                rng.random_range(-25.0..25.0),
+                rng.random_range(-20.0..20.0),
+            )
+            .expect("finite angles");
+            let cam = WeakPerspective::new(a.to_rotation(), 2.0, Vector2::new(320.0, -240.0))
+                .expect("camera");
+            points
+                .iter()
+                .map(|x| {
+                    let p = cam.project(x);
+                    [
+                        p.x + rng.random_range(-1.0..1.0),
+                        p.y + rng.random_range(-1.0..1.0),
+                    ]
+                })
+                .collect()
+        })
+        .collect()
+}
+
+fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
+    let (landmarks, xy) = if a.packed {
+        (vec![], points.iter().flatten().copied().collect())
+    } else {
+        (landmark_messages(points), vec![])
+    };
+    proto::Face {
+        landmarks,
+        scheme: a.scheme.clone(),
+        method: a.method.clone(),
+        camera: None,
+        id: String::new(),
+        landmark_style: String::new(),
+        xy,
+        missing: vec![],
+    }
+}
+
+fn bodies(a: &Args) {
+    let dir = std::path::Path::new(&a.dir);
+    std::fs::create_dir_all(dir).expect("bodies dir");
+    let one = &faces(1, &a.scheme, 1)[0];
+    let single = json!({"landmarks": one, "scheme": a.scheme, "method": a.method});
+    std::fs::write(dir.join("pose.json"), single.to_string()).expect("write");
+    let batch: Vec<_> = faces(a.batch, &a.scheme, 2)
+        .into_iter()
+        .map(|f| json!({ "landmarks": f }))
+        .collect();
+    let batch = json!({"faces": batch, "scheme": a.scheme, "method": a.method});
+    std::fs::write(dir.join("batch.json"), batch.to_string()).expect("write");
+    // gRPC framing: compressed flag 0, big-endian length, message.
+    let req = proto::EstimateRequest {
+        face: Some(proto_face(one, a)),
+        model: String::new(),
+    }
+    .encode_to_vec();
+    let mut framed = vec![0u8];
+    framed.extend_from_slice(&(req.len() as u32).to_be_bytes());
+    framed.extend_from_slice(&req);
+    std::fs::write(dir.join("estimate.grpc"), framed).expect("write");
+    println!(
+        "wrote pose.json, batch.json ({} faces), estimate.grpc to {}",
+        a.batch,
+        dir.display()
+    );
+}
+
+/// Of a `FrameResult`, its faces only.
+#[derive(Clone, PartialEq, Message)]
+struct FrameOutcome {
+    #[prost(message, repeated, tag = "3")]
+    faces: Vec<FaceOutcome>,
+}
+
+/// Of a `FaceResult`, its pose unread (`bytes` over the same buffer: no copy, no decode).
+#[derive(Clone, PartialEq, Message)]
+struct FaceOutcome {
+    #[prost(bytes = "bytes", optional, tag = "2")]
+    pose: Option<Bytes>,
+}
+
+/// The stream's codec on the generator's side: encoded frames out, [`FrameOutcome`]s in.
+struct LightCodec;
+
+struct EncodedFrames;
+
+struct Outcomes;
+
+impl Codec for LightCodec {
+    type Encode = Bytes;
+    type Decode = FrameOutcome;
+    type Encoder = EncodedFrames;
+    type Decoder = Outcomes;
+    fn encoder(&mut self) -> EncodedFrames {
+        EncodedFrames
+    }
+    fn decoder(&mut self) -> Outcomes {
+        Outcomes
+    }
+}
+
+impl Encoder for EncodedFrames {
+    type Item = Bytes;
+    type Error = tonic::Status;
+    fn encode(&mut self, frame: Bytes, dst: &mut EncodeBuf<'_>) -> Result<(), tonic::Status> {
+        dst.put_slice(&frame);
+        Ok(())
+    }
+}
+
+impl Decoder for Outcomes {
+    type Item = FrameOutcome;
+    type Error = tonic::Status;
+    fn decode(&mut self, src: &mut DecodeBuf<'_>) -> Result<Option<FrameOutcome>, tonic::Status> {
+        FrameOutcome::decode(src).map(Some).map_err(|e| {
+            tonic::Status::internal(format!("a FrameResult that does not decode: {e}"))
+        })
+    }
+}
+
+/// `loadgen ceiling`: [`facepose_service::http::answer_batch`] on one body, over and over on
+/// `a.threads` threads for `a.duration`, after a warm-up.
+fn ceiling(a: &Args) {
+    use facepose_service::config::Limits;
+    let body = prost::bytes::Bytes::from(std::fs::read(&a.dir).expect("the batch body"));
+    let set = facepose_service::registry::load_models(None).expect("the default models");
+    let limits = Limits {
+        max_batch: usize::MAX,
+        max_body: usize::MAX,
+        request_timeout: Duration::from_secs(3600),
+        max_concurrency: 1,
+        max_streams: 1,
+        max_upload: 0,
+        upload_timeout: Duration::from_secs(1),
+    };
+    let answer = |b: &Bytes| {
+        facepose_service::http::answer_batch(b.clone(), &set, limits, None)
+            .unwrap_or_else(|e| panic!("the body is refused: {}", e.message))
+    };
+    let first: serde_json::Value = serde_json::from_slice(&answer(&body)).expect("JSON");
+    let faces = first["succeeded"].as_u64().unwrap_or(0) + first["failed"].as_u64().unwrap_or(0);
+    let warm = Instant::now() + Duration::from_millis(500);
+    while Instant::now() < warm {
+        answer(&body);
+    }
+    let start = Instant::now();
+    let until = start + a.duration;
+    let bodies = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..a.threads.max(1))
+            .map(|_| {
+                s.spawn(|| {
+                    let mut n = 0u64;
+                    while Instant::now() < until {
+                        std::hint::black_box(answer(&body));
+                        n += 1;
+                    }
+                    n
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .map(|w| w.join().expect("worker"))
+            .sum::<u64>()
+    });
+    let secs = start.elapsed().as_secs_f64();
+    println!(
+        "threads {} faces/body {faces}: {:.0} faces/s, {:.2} µs of thread time a face",
+        a.threads.max(1),
+        (bodies * faces) as f64 / secs,
+        secs * a.threads.max(1) as f64 * 1e6 / (bodies * faces) as f64
+    );
+}
+
+/// One stream: returns (poses, per-frame latencies).
+async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
+    let channel = tonic::transport::Endpoint::from_shared(a.addr.clone())
+        .expect("--addr is a URL")
+        .connect()
+        .await
+        .expect("connect");
+    let mut client = tonic::client::Grpc::new(channel);
+    let pool: Vec<Bytes> = faces(64 * a.faces, &a.scheme, seed)
+        .chunks(a.faces)
+        .enumerate()
+        .map(|(k, fs)| {
+            let frame = proto::Frame {
+                frame_id: k as u64,
+                timestamp_us: 0,
+                faces: fs.iter().map(|f| proto_face(f, a)).collect(),
+                model: String::new(),
+                smoothing: None,
+            };
+            Bytes::from(frame.encode_to_vec())
+        })
+        .collect();
+    let (tx, rx) = tokio::sync::mpsc::channel::<Bytes>(a.window.max(1));
+    client.ready().await.expect("the server is ready");
+    let mut out = client
+        .streaming(
+            tonic::Request::new(tokio_stream::wrappers::ReceiverStream::new(rx)),
+            tonic::codegen::http::uri::PathAndQuery::from_static(
+                "/facepose.v1.PoseService/EstimateStream",
+            ),
+            LightCodec,
+        )
+        .await
+        .expect("stream")
+        .into_inner();
+    let mut sent: VecDeque<Instant> = VecDeque::new();
+    let mut lat = Vec::new();
+    let mut poses = 0u64;
+    let mut k = 0usize;
+    loop {
+        while sent.len() < a.window && Instant::now() < until {
+            let f = pool[k % pool.len()].clone();
+            k += 1;
+            sent.push_back(Instant::now());
+            if tx.send(f).await.is_err() {
+                break;
+            }
+        }
+        if sent.is_empty() {
+            break;
+        }
+        match out.next().await {
+            Some(Ok(r)) => {
+                let t0 = sent.pop_front().expect("a frame in flight");
+                lat.push(t0.elapsed());
+                poses += r.faces.iter().filter(|f| f.pose.is_some()).count() as u64;
+            }
+            Some(Err(e)) => panic!("stream error: {e}"),
+            None => break,
+        }
+    }
+    (poses, lat)
+}
+
+async fn stream(a: Args) {
+    let a = std::sync::Arc::new(a);
+    // Warm up: connections, and the server's first requests.
+    let warm = Instant::now() + Duration::from_millis(500);
+    one_stream(&a, 99, warm).await;
+    let start = Instant::now();
+    let until = start + a.duration;
+    let tasks: Vec<_> = (0..a.streams)
+        .map(|s| {
+            let a = a.clone();
+            tokio::spawn(async move { one_stream(&a, s as u64, until).await })
+        })
+        .collect();
+    let mut poses = 0;
+    let mut lat = Vec::new();
+    for t in tasks {
+        let (p, l) = t.await.expect("stream task");
+        poses += p;
+        lat.extend(l);
+    }
+    let secs = start.elapsed().as_secs_f64();
+    lat.sort();
+    let pct = |q: f64| {
+        lat.get(((lat.len() as f64 * q) as usize).min(lat.len().saturating_sub(1)))
+            .map_or(0.0, |d| d.as_secs_f64() * 1e3)
+    };
+    println!(
+        "streams {} faces/frame {} window {} scheme {} method {} encoding {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
+        a.streams,
+        a.faces,
+        a.window,
+        a.scheme,
+        a.method,
+        if a.packed { "xy" } else { "landmarks" },
+        poses as f64 / secs,
+        lat.len() as f64 / secs,
+        pct(0.5),
+        pct(0.99)
+    );
+}
+
+fn main() {
+    let a = parse_args();
+    match a.cmd.as_str() {
+        "bodies" => bodies(&a),
+        "ceiling" => ceiling(&a),
+        "stream" => tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .expect("runtime")
+            .block_on(stream(a)),
+        _ => eprintln!(
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
+        ),
+    }
+}

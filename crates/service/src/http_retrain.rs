@@ -1,0 +1,375 @@
+//! The HTTP routes of retraining: `POST /v1/models` (a shape set; answers at once with the
+//! job) and `GET /v1/models/jobs/{id}`. The admin token is checked before the body is read.
+
+use std::sync::Arc;
+
+use axum::Json;
+use axum::body::Body;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use utoipa::ToSchema;
+
+use super::AppState;
+use super::errors::{ApiError, ErrorBody, ErrorKind};
+use super::http::{discard_body, parse_json, read_body_limited, require_json};
+use super::http_registry::authorize;
+use super::jobs::{Cancel, Job};
+use super::pose::on_blocking_pool;
+use super::retrain::{self, RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
+use facepose_core::model::bundle::sha256_hex;
+use facepose_core::shape::Scheme;
+
+type SharedState = Arc<AppState>;
+
+/// One subject of a multi-view upload: its views, each one `[x, y]` (image pixels) or `null`
+/// per point of the scheme.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SubjectUpload {
+    /// Echoed nowhere; for the client's bookkeeping.
+    #[serde(default)]
+    #[schema(value_type = Option<Object>)]
+    pub id: Option<serde_json::Value>,
+    #[schema(value_type = Vec<Vec<Option<Vec<f64>>>>)]
+    pub views: Vec<Vec<Option<[f64; 2]>>>,
+}
+
+/// A pose grid: `[min, max, step]` in degrees per angle; no `roll`: 0 only.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct GridUpload {
+    #[schema(value_type = Vec<f64>)]
+    pub yaw: [f64; 3],
+    #[schema(value_type = Vec<f64>)]
+    pub pitch: [f64; 3],
+    #[serde(default)]
+    #[schema(value_type = Option<Vec<f64>>)]
+    pub roll: Option<[f64; 3]>,
+}
+
+impl From<&GridUpload> for RawGrid {
+    fn from(g: &GridUpload) -> Self {
+        RawGrid {
+            yaw: g.yaw,
+            pitch: g.pitch,
+            roll: g.roll,
+        }
+    }
+}
+
+/// A custom grid: the coarse model's grid and the fine bins.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CustomGrid {
+    pub coarse: GridUpload,
+    #[serde(default)]
+    pub bins: Vec<GridUpload>,
+}
+
+/// Training options; every field is optional.
+#[derive(Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TrainingOptions {
+    /// `"wide"` (default: coarse yaw ±90° / pitch ±60° at 6° and five yaw bins at 2°),
+    /// `"paper"` (yaw and pitch ±40° at 2°), or a [`CustomGrid`] object.
+    #[serde(default)]
+    #[schema(value_type = Option<Object>)]
+    pub grid: Option<serde_json::Value>,
+    /// Candidate ridge parameters; default 1e-7 ... 1e-3.
+    #[serde(default)]
+    pub epsilons: Option<Vec<f64>>,
+    /// Sub-schemes to serve besides the model's own; default `inner51`, `five` for ibug68,
+    /// `five` for other schemes.
+    #[serde(default)]
+    pub subsets: Option<Vec<String>>,
+    /// Principal components of the shape basis for `fit-shape` (0: none); default 40.
+    #[serde(default)]
+    pub components: Option<usize>,
+    /// Seed of the validation views; default 2011.
+    #[serde(default)]
+    pub seed: Option<u64>,
+    /// Fewest shapes (subjects) that must remain after validation; default 10.
+    #[serde(default)]
+    pub min_shapes: Option<usize>,
+    /// `k` of the outlier threshold `median + k · 1.4826 · MAD`; default 6.
+    #[serde(default)]
+    pub outlier_k: Option<f64>,
+}
+
+/// `POST /v1/models`: a shape set to retrain a model from.
+#[derive(Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RetrainRequest {
+    /// The model to retrain (or create); default `default`.
+    #[serde(default)]
+    pub model: Option<String>,
+    /// A built-in scheme name (default `ibug68`) or a scheme definition (docs/FORMATS.md).
+    #[serde(default)]
+    #[schema(value_type = Option<Object>)]
+    pub scheme: Option<serde_json::Value>,
+    /// 3D shapes: one `[x, y, z]` per point of the scheme (model frame, mm).
+    #[serde(default)]
+    #[schema(value_type = Option<Vec<Vec<Vec<f64>>>>)]
+    pub shapes: Option<Vec<Vec<[f64; 3]>>>,
+    /// Or several 2D views per subject, rebuilt by structure from motion.
+    #[serde(default)]
+    pub subjects: Option<Vec<SubjectUpload>>,
+    #[serde(default)]
+    pub options: Option<TrainingOptions>,
+    /// Activate the new version once written; default true.
+    #[serde(default)]
+    pub activate: Option<bool>,
+    /// Free text recorded in the version's provenance.
+    #[serde(default)]
+    pub notes: Option<String>,
+}
+
+impl RetrainRequest {
+    fn into_raw(self, sha256: String) -> Result<RawUpload, ApiError> {
+        let scheme = match self.scheme {
+            None => None,
+            Some(serde_json::Value::String(s)) => Some(SchemeSpec::Name(s)),
+            Some(v @ serde_json::Value::Object(_)) => Some(SchemeSpec::Definition(Box::new(
+                serde_json::from_value::<Scheme>(v)
+                    .map_err(|e| ApiError::invalid(format!("scheme: {e}")))?,
+            ))),
+            Some(_) => {
+                return Err(ApiError::invalid(
+                    "scheme: give a built-in scheme name or a scheme definition object",
+                ));
+            }
+        };
+        let o = self.options.unwrap_or_default();
+        let (grid, custom_grid) = match o.grid {
+            None => (None, None),
+            Some(serde_json::Value::String(s)) => (Some(s), None),
+            Some(v @ serde_json::Value::Object(_)) => {
+                let g: CustomGrid = serde_json::from_value(v)
+                    .map_err(|e| ApiError::invalid(format!("options.grid: {e}")))?;
+                (
+                    None,
+                    Some(((&g.coarse).into(), g.bins.iter().map(Into::into).collect())),
+                )
+            }
+            Some(_) => {
+                return Err(ApiError::invalid(
+                    "options.grid: give \"wide\", \"paper\" or a grid object",
+                ));
+            }
+        };
+        let both = self.shapes.is_some() && self.subjects.is_some();
+        let data = match (self.shapes, self.subjects) {
+            // Each shape's arrays are freed as it is converted (uploads run to 64 MiB).
+            (Some(s), _) => Some(UploadData::Shapes(
+                s.into_iter()
+                    .map(|shape| {
+                        shape
+                            .into_iter()
+                            .map(facepose_core::shape::Point3::from)
+                            .collect()
+                    })
+                    .collect(),
+            )),
+            (None, Some(s)) => Some(UploadData::Subjects(
+                s.into_iter().map(|s| s.views).collect(),
+            )),
+            (None, None) => None,
+        };
+        Ok(RawUpload {
+            model: self.model,
+            scheme,
+            data,
+            both,
+            options: RawOptions {
+                grid,
+                custom_grid,
+                epsilons: o.epsilons,
+                subsets: o.subsets,
+                components: o.components,
+                seed: o.seed,
+                min_shapes: o.min_shapes,
+                outlier_k: o.outlier_k,
+            },
+            activate: self.activate,
+            notes: self.notes,
+            sha256,
+            origin: "POST /v1/models",
+        })
+    }
+}
+
+/// Upload a shape set and retrain a model in the background (admin).
+#[utoipa::path(
+    post, path = "/v1/models", tag = "registry",
+    request_body = RetrainRequest,
+    security(("admin_token" = [])),
+    responses(
+        (status = 202, description = "Accepted: the job (Location: /v1/models/jobs/{id}); its validation report for 3D shapes", body = Job),
+        (status = 400, description = "Malformed JSON", body = ErrorBody),
+        (status = 401, description = "Missing or wrong admin token", body = ErrorBody),
+        (status = 403, description = "Admin routes disabled (no token configured)", body = ErrorBody),
+        (status = 409, description = "The server has no models folder", body = ErrorBody),
+        (status = 413, description = "Body over --max-upload", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Unusable upload: scheme, options, counts, or too few valid shapes (details.validation lists every dropped shape)", body = ErrorBody),
+        (status = 429, description = "Too many jobs queued", body = ErrorBody),
+    )
+)]
+pub async fn retrain(
+    State(st): State<SharedState>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let refused = authorize(&st, &headers)
+        .and_then(|()| st.registry.require_dir().map(drop))
+        .and_then(|()| require_json(&headers));
+    // A place in the queue before the body is read: uploads in memory are bounded too.
+    let slot = match refused.and_then(|()| st.reserve_job()) {
+        Ok(slot) => slot,
+        Err(e) => {
+            discard_body(&headers, body).await;
+            return Err(e);
+        }
+    };
+    let bytes = read_body_limited(
+        &headers,
+        body,
+        st.limits.max_upload,
+        "--max-upload",
+        "send fewer shapes",
+    )
+    .await?;
+    let prepared = on_blocking_pool("checking the upload", move || {
+        let req: RetrainRequest = parse_json(&bytes)?;
+        let sha = sha256_hex(&bytes);
+        drop(bytes);
+        retrain::prepare(req.into_raw(sha)?)
+    })
+    .await?;
+    let job = retrain::job::submit_reserved(&st, prepared, slot)?;
+    let location = HeaderValue::from_str(&format!("/v1/models/jobs/{}", job.id))
+        .map_err(|e| ApiError::internal(e.to_string()))?;
+    Ok((
+        StatusCode::ACCEPTED,
+        [(header::LOCATION, location)],
+        Json(job),
+    )
+        .into_response())
+}
+
+/// A retraining job, from any replica sharing the models folder.
+#[utoipa::path(get, path = "/v1/models/jobs/{id}", tag = "registry",
+    params(("id" = String, Path, description = "The job id from POST /v1/models")),
+    responses((status = 200, body = Job), (status = 404, body = ErrorBody)))]
+pub async fn get_job(
+    State(st): State<SharedState>,
+    Path(id): Path<String>,
+) -> Result<Json<Job>, ApiError> {
+    // Another replica's job is read from the models folder: off the async workers.
+    Ok(Json(
+        on_blocking_pool("job look-up", move || st.jobs.get(&id)).await?,
+    ))
+}
+
+/// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
+/// trains; a running one stops at its next stage, before its version is written.
+#[utoipa::path(post, path = "/v1/models/jobs/{id}", tag = "registry",
+    params(("id" = String, Path, description = "`<id>:cancel`")),
+    security(("admin_token" = [])),
+    responses(
+        (status = 200, description = "Cancelled (state `cancelled`)", body = Job),
+        (status = 202, description = "The job runs on another replica, asked to cancel it at its next stage; the job as last recorded", body = Job),
+        (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
+        (status = 404, description = "Unknown job, or no action", body = ErrorBody),
+        (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
+pub async fn job_action(
+    State(st): State<SharedState>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+) -> Result<(StatusCode, Json<Job>), ApiError> {
+    authorize(&st, &headers)?;
+    let Some(job) = id.strip_suffix(":cancel") else {
+        return Err(ApiError::new(
+            ErrorKind::NotFound,
+            format!(
+                "no action in POST /v1/models/jobs/{id}: to cancel the job, POST \
+                 /v1/models/jobs/{id}:cancel"
+            ),
+        ));
+    };
+    let job = job.to_string();
+    Ok(
+        match on_blocking_pool("job cancel", move || st.jobs.cancel(&job)).await? {
+            Cancel::Done(job) => (StatusCode::OK, Json(job)),
+            Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
+        },
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::Limits;
+    use crate::errors::ErrorKind;
+    use crate::registry::{Registry, load_models, testing::temp_root};
+    use crate::{auth, jobs, metrics, shutdown};
+    use std::time::Duration;
+
+    #[tokio::test]
+    async fn a_full_queue_refuses_an_upload_before_reading_it() {
+        let root = temp_root("queue");
+        let limits = Limits {
+            max_batch: 10,
+            max_body: 1 << 20,
+            request_timeout: Duration::from_secs(5),
+            max_concurrency: 4,
+            max_streams: 4,
+            max_upload: 16,
+            upload_timeout: Duration::from_secs(5),
+        };
+        let st = Arc::new(AppState {
+            registry: Arc::new(Registry::with_dir(
+                load_models(Some(&root)).unwrap(),
+                Some(root.clone()),
+            )),
+            admin: auth::AdminToken::new("secret-token-for-tests"),
+            jobs: jobs::Jobs::new(0),
+            limits,
+            lifecycle: shutdown::Lifecycle::default(),
+            metrics: metrics::Metrics::install(),
+            permits: Arc::new(tokio::sync::Semaphore::new(4)),
+            streams: Arc::new(tokio::sync::Semaphore::new(4)),
+            openapi: String::new(),
+        });
+        let mut headers = HeaderMap::new();
+        headers.insert(
+            header::AUTHORIZATION,
+            HeaderValue::from_static("Bearer secret-token-for-tests"),
+        );
+        headers.insert(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        );
+        let body = || Body::from(vec![b' '; 100]);
+        // With a free slot, the body is read (and is over --max-upload here).
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        // The only slot is taken (a job in progress): refused before the body is read.
+        let held = st.jobs.reserve().unwrap();
+        let e = retrain(State(st.clone()), headers.clone(), body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::Overloaded, "{}", e.message);
+        assert!(e.message.contains("retry later"), "{}", e.message);
+        drop(held);
+        let e = retrain(State(st.clone()), headers, body())
+            .await
+            .unwrap_err();
+        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+}

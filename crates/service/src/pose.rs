@@ -1,0 +1,133 @@
+//! One face through the core, the same for both transports: resolve scheme and method against
+//! the model, build the shape, estimate, check the output is finite. Batches run here too, off
+//! the async reactor when they are big, with the request's deadline checked as they go.
+
+use std::time::Instant;
+
+use super::errors::ApiError;
+use super::registry::ServedModel;
+
+use facepose_core::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
+use facepose_core::record::{PoseRecord, shape_from_points};
+
+/// One face as a transport hands it over. Empty strings mean "not given".
+#[derive(Debug, Clone, Default)]
+pub struct FaceSpec<'a> {
+    pub landmarks: &'a [Option<[f64; 2]>],
+    pub scheme: Option<&'a str>,
+    pub method: Option<&'a str>,
+    pub camera: Option<Intrinsics>,
+    /// `projected` (default) or `contour`: see [`LandmarkStyle`].
+    pub style: Option<&'a str>,
+}
+
+/// An estimate as the transports send it, with the rotation for stream smoothing and the
+/// scheme it was made in.
+#[derive(Debug, Clone)]
+pub struct FacePose {
+    pub record: PoseRecord,
+    pub rotation: facepose_core::geometry::Rotation,
+    pub scheme: String,
+}
+
+fn given(s: Option<&str>) -> Option<&str> {
+    s.filter(|s| !s.is_empty())
+}
+
+/// Estimates one face with `model`. Every failure is a client error with a message.
+pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePose, ApiError> {
+    let scheme = given(face.scheme).unwrap_or_else(|| model.scheme());
+    // The scheme first: the landmark count is checked against it.
+    model.model.subset(scheme)?;
+    let method: Method = match given(face.method) {
+        Some(m) => m.parse()?,
+        None => Method::Auto,
+    };
+    if method == Method::FitShape && model.model.morph.is_none() {
+        return Err(ApiError::invalid(format!(
+            "method fit-shape needs a model with a shape basis; model {:?} has none",
+            model.name
+        )));
+    }
+    let style: LandmarkStyle = match given(face.style) {
+        Some(s) => s.parse()?,
+        None => LandmarkStyle::default(),
+    };
+    let shape = shape_from_points(face.landmarks)?;
+    let estimate = estimate_with(
+        &model.model,
+        scheme,
+        &shape,
+        &EstimateOptions {
+            method,
+            camera: face.camera,
+            style,
+        },
+    )?;
+    let rotation = estimate.rotation;
+    let record = PoseRecord::from(estimate);
+    if !record.is_finite() {
+        return Err(ApiError::invalid(
+            "could not estimate a pose from these landmarks: the result is not finite; \
+             check that they are the pixel coordinates of one face",
+        ));
+    }
+    Ok(FacePose {
+        record,
+        rotation,
+        scheme: scheme.to_string(),
+    })
+}
+
+/// Batches with more faces than this run on the blocking pool, not on the async workers.
+pub const INLINE_FACES: usize = 8;
+
+/// Maps `f` over a batch's faces, each independently. Stops early once `deadline` has passed
+/// (checked every few faces), so that a timed-out batch does not keep a core busy.
+pub fn for_each_face<T, R>(
+    faces: impl IntoIterator<Item = T>,
+    deadline: Option<Instant>,
+    mut f: impl FnMut(T) -> R,
+) -> Result<Vec<R>, DeadlinePassed> {
+    let faces = faces.into_iter();
+    let mut out = Vec::with_capacity(faces.size_hint().0);
+    for (i, face) in faces.enumerate() {
+        if i % 16 == 15 && deadline.is_some_and(|d| Instant::now() > d) {
+            return Err(DeadlinePassed);
+        }
+        out.push(f(face));
+    }
+    Ok(out)
+}
+
+/// The deadline passed during a batch.
+#[derive(Debug, Clone, Copy)]
+pub struct DeadlinePassed;
+
+/// Runs fallible blocking work (file I/O, training, validation of an upload) on the blocking
+/// pool; a panic there is an internal error naming `what`, not a crash.
+pub async fn on_blocking_pool<T, F>(what: &str, f: F) -> Result<T, ApiError>
+where
+    F: FnOnce() -> Result<T, ApiError> + Send + 'static,
+    T: Send + 'static,
+{
+    tokio::task::spawn_blocking(f)
+        .await
+        .map_err(|e| ApiError::internal(format!("{what} failed: {e}")))?
+}
+
+/// Runs `f` inline when `inline`, else on the blocking pool. Estimation is microseconds per
+/// face: a thread hop only pays off for batches.
+pub async fn run_maybe_blocking<T, F>(inline: bool, f: F) -> Result<T, ApiError>
+where
+    F: FnOnce() -> T + Send + 'static,
+    T: Send + 'static,
+{
+    if inline {
+        Ok(f())
+    } else {
+        tokio::task::spawn_blocking(f)
+            .await
+            .map_err(|e| ApiError::internal(format!("estimation task failed: {e}")))
+    }
+}

@@ -1,0 +1,238 @@
+//! A retraining job from an accepted upload to its end: (structure from motion and validation
+//! for multi-view sets), training on the blocking pool, the new version written into the
+//! models folder and, unless the upload said otherwise, activated. Every outcome is recorded in
+//! the job table; a failure's message says what went wrong and what to do.
+
+use std::sync::Arc;
+
+use tracing::Instrument;
+
+use super::{JobSpec, Prepared, Work, too_few};
+use crate::AppState;
+use crate::errors::ApiError;
+use crate::jobs::{Job, JobStage, JobState, Slot, now_rfc3339};
+use crate::pose::on_blocking_pool;
+use facepose_core::model::bundle::{Bundle, Provenance, SourceFile};
+use facepose_core::model::validate::{
+    Dropped, ValidatedShapes, ValidationOptions, reconstruct_subject, validate_shapes,
+};
+use facepose_core::model::{BasisSource, train_from_population};
+use facepose_core::shape::Shape2;
+
+/// Registers an accepted upload as a job and starts it; the job holds `slot` (taken with
+/// [`crate::jobs::Jobs::reserve`] before the upload was read) until it ends.
+pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result<Job, ApiError> {
+    let spec = p.spec;
+    if let Some(e) = state
+        .registry
+        .snapshot()
+        .name_conflict(&spec.model, &spec.model)
+    {
+        return Err(e);
+    }
+    let job = state.jobs.create(
+        &spec.model,
+        spec.kind,
+        spec.uploaded,
+        spec.activate,
+        match &p.work {
+            Work::Shapes(v) => Some(v.report.clone()),
+            Work::Subjects { .. } => None,
+        },
+    )?;
+    tracing::info!(job = %job.id, model = %spec.model, kind = spec.kind, uploaded = spec.uploaded,
+        "retraining job accepted");
+    // The job outlives the request: its own span, not a child of the request's.
+    let span = tracing::info_span!(parent: None, "job", id = %job.id, model = %spec.model);
+    let (state, id) = (state.clone(), job.id.clone());
+    tokio::spawn(
+        async move {
+            run(state.clone(), id.clone(), Arc::new(spec), p.work).await;
+            state.jobs.task_ended(&id);
+            drop(slot);
+        }
+        .instrument(span),
+    );
+    Ok(job)
+}
+
+/// Rebuilds the subjects by structure from motion and validates the shapes; indices in the
+/// report are the subjects' in the upload.
+fn reconstruct_all(
+    spec: &JobSpec,
+    views: &[(usize, Vec<Shape2>)],
+    mut dropped: Vec<Dropped>,
+    progress: impl Fn(f64),
+) -> Result<ValidatedShapes, ApiError> {
+    let mut shapes = Vec::new();
+    let mut index = Vec::new();
+    for (done, (k, v)) in views.iter().enumerate() {
+        match reconstruct_subject(&spec.scheme, v) {
+            Ok(s) => {
+                shapes.push(s);
+                index.push(*k);
+            }
+            Err((reason, detail)) => dropped.push(Dropped {
+                index: *k,
+                reason,
+                detail,
+            }),
+        }
+        progress((done + 1) as f64 / views.len() as f64);
+    }
+    let opts = ValidationOptions {
+        scale_free: true,
+        ..spec.options.validation
+    };
+    let mut v = validate_shapes(&spec.scheme, &shapes, &opts)?;
+    for d in &mut v.report.dropped {
+        d.index = index[d.index];
+    }
+    v.indices = v.indices.iter().map(|&i| index[i]).collect();
+    dropped.append(&mut v.report.dropped);
+    dropped.sort_by_key(|d| d.index);
+    v.report.dropped = dropped;
+    v.report.total = spec.uploaded;
+    Ok(v)
+}
+
+/// Runs an accepted job to its end (after the jobs accepted before it, unless it is cancelled
+/// while it waits); every outcome is recorded in the job table.
+pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Work) {
+    let trainer = tokio::select! {
+        biased;
+        () = state.jobs.cancelled(&id) => None,
+        permit = state.jobs.trainer() => permit,
+    };
+    let Some(_trainer) = trainer else {
+        tracing::info!("retraining job cancelled while queued");
+        return;
+    };
+    match steps(&state, &id, &spec, work).await {
+        Ok(Some(version)) => {
+            tracing::info!(version = %version, activated = spec.activate, "retraining job succeeded");
+            state.jobs.succeed(&id);
+        }
+        Ok(None) => tracing::info!("retraining job cancelled"),
+        Err(e)
+            if state
+                .jobs
+                .get(&id)
+                .is_ok_and(|j| j.state == JobState::Cancelled) =>
+        {
+            tracing::info!(error = %e.message, "cancelled retraining job stopped on an error");
+        }
+        Err(e) => {
+            tracing::warn!(error = %e.message, "retraining job failed");
+            state.jobs.fail(&id, e.message);
+        }
+    }
+}
+
+/// The job's steps; the version written, or `None` when the job was cancelled (checked as
+/// each stage starts; the last chance is before writing).
+async fn steps(
+    state: &Arc<AppState>,
+    id: &str,
+    spec: &Arc<JobSpec>,
+    work: Work,
+) -> Result<Option<String>, ApiError> {
+    let jobs = &state.jobs;
+    let validated = match work {
+        Work::Shapes(v) => v,
+        Work::Subjects { views, dropped } => {
+            if !jobs.stage(id, JobStage::Validating, 0.0) {
+                return Ok(None);
+            }
+            let (st, jid, sp) = (state.clone(), id.to_string(), spec.clone());
+            let v = on_blocking_pool("structure from motion", move || {
+                reconstruct_all(&sp, &views, dropped, |f| {
+                    st.jobs.update(&jid, |j| j.progress = 0.3 * f);
+                })
+            })
+            .await?;
+            jobs.update(id, |j| j.validation = Some(v.report.clone()));
+            if v.report.kept < spec.options.min_shapes {
+                return Err(too_few(&v.report, "subject", spec.options.min_shapes));
+            }
+            v
+        }
+    };
+    if !jobs.stage(id, JobStage::Training, 0.3) {
+        return Ok(None);
+    }
+    let sp = spec.clone();
+    let kept = validated.shapes.len();
+    let model = on_blocking_pool("training", move || {
+        let basis = BasisSource::Pca(sp.options.components);
+        train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
+            .map_err(|e| ApiError::invalid(format!("training failed: {e}")))
+    })
+    .await?;
+    if !jobs.stage(id, JobStage::Writing, 0.85) {
+        return Ok(None);
+    }
+    let (sp, job_id) = (spec.clone(), id.to_string());
+    let (version, _) = state
+        .registry
+        .write_version(&spec.model, move |version| {
+            Bundle::from_model(
+                &model,
+                &sp.options.train,
+                &sp.model,
+                version,
+                &now_rfc3339(),
+                provenance(&sp, &job_id, kept),
+            )
+            .map_err(|e| ApiError::internal(format!("the trained model has no bundle: {e}")))
+        })
+        .await?;
+    jobs.update(id, |j| j.version = Some(version.clone()));
+    if spec.activate {
+        // Not cancellable once writing: the stage always starts.
+        let _ = jobs.stage(id, JobStage::Activating, 0.9);
+        state
+            .registry
+            .activate(&spec.model, &version)
+            .await
+            .map_err(|e| {
+                ApiError::new(
+                    e.kind,
+                    format!(
+                        "version {version} was written but not activated: {}; activate it or \
+                         another version through the API",
+                        e.message
+                    ),
+                )
+            })?;
+    }
+    Ok(Some(version))
+}
+
+fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
+    let basis = if spec.options.components == 0 {
+        "none".to_string()
+    } else {
+        format!(
+            "up to {} principal components of the shapes",
+            spec.options.components
+        )
+    };
+    let mut notes = format!(
+        "retrained through the service (job {job}) from {} uploaded {} ({kept} kept after \
+         validation); mean by generalized Procrustes analysis; shape basis: {basis}",
+        spec.uploaded, spec.kind
+    );
+    if !spec.notes.is_empty() {
+        notes = format!("{}; {notes}", spec.notes);
+    }
+    Provenance {
+        sources: vec![SourceFile {
+            path: format!("upload of job {job}"),
+            sha256: spec.sha256.clone(),
+            shapes: spec.uploaded,
+        }],
+        command: spec.origin.to_string(),
+        notes,
+    }
+}

@@ -1,7 +1,0 @@
-//! Landmark schemes and 2D/3D shapes.
-
-pub mod scheme;
-pub mod shapes;
-
-pub use scheme::{Anchors, Scheme, five, ibug68, inner51};
-pub use shapes::{Shape2, Shape3, normalized_vector};

@@ -1,0 +1,144 @@
+//! The `facepose` binary end to end: `reconstruct` on a multi-view file made from a known shape,
+//! `eval-sfm` and `hpr` on the shared data, and errors for bad files.
+
+use crate::common;
+
+use std::process::Command;
+
+use facepose_core::geometry::{
+    EulerAngles, Scaling, WeakPerspective, align3, procrustes::rms_distance3,
+};
+use facepose_files::data::load_population;
+use nalgebra::{Vector2, Vector3};
+use serde_json::{Value, json};
+
+fn facepose(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_facepose"))
+        .args(args)
+        .output()
+        .expect("run facepose")
+}
+
+#[test]
+fn reconstruct_writes_the_shape_back() {
+    let shape = load_population(&common::data_file("bfm68/population_249.json"))
+        .unwrap()
+        .shapes[3]
+        .clone();
+    let views: Vec<Value> = [
+        (-25.0, 5.0),
+        (-10.0, -5.0),
+        (0.0, 0.0),
+        (12.0, 4.0),
+        (28.0, -6.0),
+    ]
+    .iter()
+    .map(|&(yaw, pitch)| {
+        let cam = WeakPerspective::new(
+            EulerAngles::new(yaw, pitch, 3.0).unwrap().to_rotation(),
+            2.0,
+            Vector2::new(225.0, -225.0),
+        )
+        .unwrap();
+        let pts: Vec<Value> = shape
+            .iter()
+            .enumerate()
+            .map(|(i, x)| {
+                if i == 5 && yaw > 20.0 {
+                    Value::Null
+                } else {
+                    let p = cam.project(x);
+                    json!([p.x, p.y])
+                }
+            })
+            .collect();
+        Value::Array(pts)
+    })
+    .collect();
+    let dir = std::env::temp_dir().join(format!("facepose-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let input = dir.join("views.json");
+    let output = dir.join("shape.json");
+    std::fs::write(
+        &input,
+        json!({"scheme": "ibug68", "views": views}).to_string(),
+    )
+    .unwrap();
+    let out = facepose(&[
+        "reconstruct",
+        "--views",
+        input.to_str().unwrap(),
+        "--out",
+        output.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&output).unwrap()).unwrap();
+    let rec: Vec<Vector3<f64>> = v["shapes"][0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            Vector3::new(
+                p[0].as_f64().unwrap(),
+                p[1].as_f64().unwrap(),
+                p[2].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let sim = align3(&rec, &shape, Scaling::Similarity).unwrap();
+    let moved: Vec<_> = rec.iter().map(|p| sim.apply(p)).collect();
+    assert!(rms_distance3(&moved, &shape) < 1e-6);
+    // Frontalized: the eye line is along x, the nose in front; scale 2 px/mm.
+    assert!((rec[45].y - rec[36].y).abs() < 0.1 * (rec[45].x - rec[36].x).abs());
+    assert!(rec[30].z > 0.0);
+    assert!((sim.scale - 0.5).abs() < 1e-6);
+    assert_eq!(v["subjects"][0]["missing_entries"], 1);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn bad_files_fail_with_a_message() {
+    let dir = std::env::temp_dir().join(format!("facepose-cli-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cases = [
+        (
+            "{\"views\": [[[1, 2]]], \"subjects\": []}",
+            "exactly one of",
+        ),
+        ("{\"scheme\": \"nope\", \"views\": []}", "unknown scheme"),
+        (
+            "{\"views\": [[[1, 2], [3, 4]]]}",
+            "points, scheme ibug68 has 68",
+        ),
+        ("not json", "expected"),
+    ];
+    for (k, (text, needle)) in cases.iter().enumerate() {
+        let p = dir.join(format!("bad{k}.json"));
+        std::fs::write(&p, text).unwrap();
+        let out = facepose(&["reconstruct", "--views", p.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(2));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(needle), "{text}: {err}");
+    }
+    let out = facepose(&["reconstruct", "--views", "/nonexistent/views.json"]);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot read"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn hpr_prints_the_table() {
+    let out = facepose(&["hpr", "--step", "30"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    for needle in ["mesh468", "ibug68 (from 468)", "ibug68 (68 alone)", "Katz"] {
+        assert!(text.contains(needle), "{needle} missing:\n{text}");
+    }
+}

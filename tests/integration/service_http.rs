@@ -1,0 +1,553 @@
+//! The HTTP JSON API of `facepose serve`, black box: the real binary on a loopback port.
+//! Poses come from the default model's mean shape projected at known angles, so the expected
+//! answers are independent of the estimator.
+
+use crate::service_support::*;
+use facepose_core::geometry::geodesic_deg;
+use reqwest::StatusCode;
+use serde_json::{Value, json};
+
+const POSES: [(f64, f64, f64); 4] = [
+    (0.0, 0.0, 0.0),
+    (30.0, -12.0, 8.0),
+    (-45.0, 15.0, -10.0),
+    (65.0, 5.0, 20.0),
+];
+
+async fn post(c: &reqwest::Client, url: &str, body: &Value) -> (StatusCode, Value) {
+    let r = c.post(url).json(body).send().await.unwrap();
+    let status = r.status();
+    let v = r.json::<Value>().await.unwrap();
+    (status, v)
+}
+
+fn assert_pose(v: &Value, (yaw, pitch, roll): (f64, f64, f64), tol: f64) {
+    let err = geodesic_deg(&rotation_json(&v["rotation"]), &rotation(yaw, pitch, roll));
+    assert!(err < tol, "({yaw}, {pitch}, {roll}) -> {v}");
+    for (k, want) in [("yaw", yaw), ("pitch", pitch), ("roll", roll)] {
+        let got = v[k].as_f64().unwrap();
+        assert!((got - want).abs() < tol, "{k}: {got} vs {want}");
+    }
+}
+
+#[tokio::test]
+async fn known_poses_come_back() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose");
+    for &pose in &POSES {
+        let (y, p, r) = pose;
+        for method in ["auto", "fit", "fit-shape"] {
+            let (status, v) = post(
+                &c,
+                &url,
+                &json!({"landmarks": face68(y, p, r), "method": method, "id": "f1"}),
+            )
+            .await;
+            assert_eq!(status, StatusCode::OK, "{v}");
+            assert_pose(&v, pose, 0.5);
+            assert_eq!(v["id"], "f1");
+            assert_eq!(v["scheme"], "ibug68");
+            assert_eq!(v["model"], "default");
+            assert!(v["model_version"].is_string());
+            assert_ne!(v["method"], "auto");
+            assert_eq!(v["visible"].as_array().unwrap().len(), 68);
+            assert!(v["residual"].as_f64().unwrap() < 0.01, "{v}");
+            assert!(v.get("translation").is_none());
+        }
+        // The five-point scheme and the 51-point inner scheme.
+        let (status, v) = post(
+            &c,
+            &url,
+            &json!({"landmarks": face5(y, p, r), "scheme": "five", "method": "fit"}),
+        )
+        .await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        assert_pose(&v, pose, 1.0);
+        let inner: Vec<_> = face68(y, p, r)[17..].to_vec();
+        let (status, v) = post(
+            &c,
+            &url,
+            &json!({"landmarks": inner, "scheme": "inner51", "method": "fit"}),
+        )
+        .await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        assert_pose(&v, pose, 0.5);
+    }
+    // The paper's regression within its training range, and the geometric method on five
+    // points (coarser by design).
+    let (status, v) = post(
+        &c,
+        &url,
+        &json!({"landmarks": face68(20.0, -10.0, 0.0), "method": "regression"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_pose(&v, (20.0, -10.0, 0.0), 3.0);
+    assert_eq!(v["method"], "regression");
+    // Missing points (null) do not bias the estimate.
+    let mut pts: Vec<Value> = face68(30.0, -12.0, 8.0).iter().map(|p| json!(p)).collect();
+    for i in (0..17).chain([30, 48]) {
+        pts[i] = Value::Null;
+    }
+    let (status, v) = post(&c, &url, &json!({"landmarks": pts, "method": "fit"})).await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_pose(&v, (30.0, -12.0, 8.0), 0.5);
+    // 2D-style landmarks (hidden jaw points on the outline) are accepted too.
+    let (status, v) = post(
+        &c,
+        &url,
+        &json!({"landmarks": face68(20.0, 0.0, 0.0), "method": "fit", "landmark_style": "contour"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_pose(&v, (20.0, 0.0, 0.0), 1.0);
+    // Camera intrinsics add the face's position.
+    let (status, v) = post(
+        &c,
+        &url,
+        &json!({"landmarks": face68(10.0, 0.0, 0.0), "camera": {"fx": 900, "fy": 900, "cx": 320, "cy": 240}}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_eq!(v["translation"].as_array().unwrap().len(), 3);
+    assert!(v["translation"][2].as_f64().unwrap() < 0.0, "{v}");
+    // HTTP/2 without TLS (h2c) on the same port, and the request id.
+    let h2 = reqwest::Client::builder()
+        .http2_prior_knowledge()
+        .build()
+        .unwrap();
+    let r = h2
+        .post(&url)
+        .header("x-request-id", "test-123")
+        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.version(), reqwest::Version::HTTP_2);
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["x-request-id"], "test-123");
+    let r = c.get(server.url("/healthz")).send().await.unwrap();
+    assert_eq!(r.headers()["x-request-id"].len(), 16);
+}
+
+#[tokio::test]
+async fn batches_have_per_face_results_and_a_limit() {
+    let server = Server::start(&["--max-batch", "4"]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose:batch");
+    let body = json!({
+        "method": "fit",
+        "faces": [
+            {"landmarks": face68(30.0, -12.0, 8.0), "id": 1},
+            {"landmarks": [[1, 2], [3, 4]], "id": "short"},
+            {"landmarks": face5(-45.0, 15.0, -10.0), "scheme": "five", "id": 2.5},
+            {"landmarks": vec![[3.0, 3.0]; 68], "method": "geometry"},
+        ]
+    });
+    let (status, v) = post(&c, &url, &body).await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_eq!(v["succeeded"], 2);
+    assert_eq!(v["failed"], 2);
+    assert_eq!(v["model"], "default");
+    let r = v["results"].as_array().unwrap();
+    assert_eq!(r.len(), 4);
+    assert_pose(&r[0], (30.0, -12.0, 8.0), 0.5);
+    assert_eq!(r[0]["id"], 1);
+    assert_eq!(r[1]["id"], "short");
+    assert_eq!(r[1]["error"]["code"], "invalid_argument");
+    assert!(
+        r[1]["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("expected 68 points, got 2")
+    );
+    assert_pose(&r[2], (-45.0, 15.0, -10.0), 1.0);
+    assert_eq!(r[2]["scheme"], "five");
+    assert_eq!(r[2]["id"], 2.5);
+    assert!(r[3].get("id").is_none());
+    assert!(
+        r[3]["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("degenerate")
+    );
+    // An empty batch is fine; one over the limit is refused with the limit in the message.
+    let (status, v) = post(&c, &url, &json!({"faces": []})).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(v["results"].as_array().unwrap().len(), 0);
+    let five = vec![json!({"landmarks": face68(0.0, 0.0, 0.0)}); 5];
+    let (status, v) = post(&c, &url, &json!({"faces": five})).await;
+    assert_eq!(status, StatusCode::PAYLOAD_TOO_LARGE);
+    assert_eq!(v["error"]["code"], "payload_too_large");
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("5 faces in one request; the limit is 4"),
+        "{v}"
+    );
+    // A big batch goes through the blocking pool with the same answers.
+    let server = Server::start(&[]);
+    let faces: Vec<Value> = (0..200)
+        .map(|k| json!({"landmarks": face68(-60.0 + k as f64 * 0.6, 10.0, -5.0), "id": k}))
+        .collect();
+    let (status, v) = post(
+        &c,
+        &server.url("/v1/pose:batch"),
+        &json!({"faces": faces, "method": "fit"}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK);
+    for (k, r) in v["results"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(r["id"], k);
+        assert_pose(r, (-60.0 + k as f64 * 0.6, 10.0, -5.0), 0.5);
+    }
+}
+
+#[tokio::test]
+async fn models_health_metrics_and_openapi() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let get = |path: &str| c.get(server.url(path)).send();
+    let r = get("/v1/models").await.unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(v["default_model"], "default");
+    let m = &v["models"][0];
+    assert_eq!(m["name"], "default");
+    assert_eq!(m["scheme"], "ibug68");
+    assert_eq!(m["default"], true);
+    assert_eq!(
+        m["schemes"],
+        json!([{"name": "ibug68", "points": 68}, {"name": "inner51", "points": 51}, {"name": "five", "points": 5}])
+    );
+    assert!(m["checksum"].as_str().unwrap().starts_with("sha256:"));
+    assert!(
+        m["methods"]
+            .as_array()
+            .unwrap()
+            .contains(&json!("fit-shape"))
+    );
+    let v: Value = get("/v1/models/default")
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(v["name"], "default");
+    assert!(
+        v["provenance"]["command"]
+            .as_str()
+            .unwrap()
+            .contains("train")
+    );
+    let r = get("/v1/models/nope").await.unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    let v: Value = r.json().await.unwrap();
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("unknown model \"nope\"; loaded models: default")
+    );
+    let r = get("/healthz").await.unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.json::<Value>().await.unwrap()["status"], "alive");
+    let r = get("/readyz").await.unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.json::<Value>().await.unwrap()["status"], "ready");
+    // Some traffic, then the metrics show it.
+    let _ = post(
+        &c,
+        &server.url("/v1/pose"),
+        &json!({"landmarks": face68(0.0, 0.0, 0.0), "method": "fit"}),
+    )
+    .await;
+    let _ = post(&c, &server.url("/v1/pose"), &json!({"landmarks": []})).await;
+    let r = get("/metrics").await.unwrap();
+    assert!(
+        r.headers()["content-type"]
+            .to_str()
+            .unwrap()
+            .starts_with("text/plain")
+    );
+    let text = r.text().await.unwrap();
+    for want in [
+        r#"facepose_http_requests_total{route="/v1/pose",method="POST",status="200"} 1"#,
+        r#"facepose_http_requests_total{route="/v1/pose",method="POST",status="422"} 1"#,
+        r#"facepose_http_request_duration_seconds_bucket{route="/v1/pose",method="POST",le="#,
+        r#"facepose_poses_total{transport="http",method="fit"} 1"#,
+        r#"facepose_estimate_errors_total{transport="http",code="invalid_argument"} 1"#,
+        r#"facepose_model_info{name="default",version="#,
+        "facepose_ready 1",
+    ] {
+        assert!(text.contains(want), "{want} not in\n{text}");
+    }
+    let v: Value = get("/openapi.json").await.unwrap().json().await.unwrap();
+    assert!(v["openapi"].as_str().unwrap().starts_with('3'));
+    for p in ["/v1/pose", "/v1/pose:batch", "/v1/models/{name}", "/readyz"] {
+        assert!(v["paths"][p].is_object(), "{p}");
+    }
+    // Unknown routes and methods.
+    let r = get("/v2/nothing").await.unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    assert!(
+        r.json::<Value>().await.unwrap()["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("no route GET /v2/nothing")
+    );
+    let r = get("/v1/pose").await.unwrap();
+    assert_eq!(r.status(), StatusCode::METHOD_NOT_ALLOWED);
+    assert_eq!(
+        r.json::<Value>().await.unwrap()["error"]["code"],
+        "method_not_allowed"
+    );
+}
+
+/// Three landmarks present out of 68.
+fn few_points() -> Vec<Value> {
+    let mut v = vec![Value::Null; 68];
+    v[36] = json!([100.0, 100.0]);
+    v[45] = json!([140.0, 100.0]);
+    v[30] = json!([120.0, 130.0]);
+    v
+}
+
+/// Every class of bad input: the status and a message that says what to fix.
+#[tokio::test]
+async fn bad_input_says_what_to_fix() {
+    let server = Server::start(&["--max-body", "64KiB"]);
+    let url = server.url("/v1/pose");
+    let c = reqwest::Client::new();
+    let ok = face68(10.0, 0.0, 0.0);
+    let json_cases: Vec<(Value, u16, &str)> = vec![
+        (
+            json!({"landmarks": face68(0.0, 0.0, 0.0)[..5]}),
+            422,
+            "expected 68 points, got 5",
+        ),
+        (
+            json!({"landmarks": face5(0.0, 0.0, 0.0), "scheme": "five", "method": "fit-shape"}),
+            422,
+            "fit-shape does not take scheme five",
+        ),
+        (
+            json!({"landmarks": vec![Value::Null; 68]}),
+            422,
+            "needs at least",
+        ),
+        (
+            json!({"landmarks": few_points(), "method": "fit"}),
+            422,
+            "needs at least 4 points present, got 3",
+        ),
+        (
+            json!({"landmarks": vec![[3.5, 3.5]; 68]}),
+            422,
+            "degenerate",
+        ),
+        (
+            json!({"landmarks": (0..68).map(|i| [i as f64, 2.0 * i as f64 + 1.0]).collect::<Vec<_>>()}),
+            422,
+            "degenerate",
+        ),
+        (
+            json!({"landmarks": vec![[-0.0, -0.0]; 68]}),
+            422,
+            "degenerate",
+        ),
+        (
+            json!({"landmarks": (0..68).map(|i| [1e308 * (i % 2) as f64, 5.0]).collect::<Vec<_>>()}),
+            422,
+            "out of range",
+        ),
+        (
+            json!({"landmarks": ok, "scheme": "mediapipe468"}),
+            422,
+            "this model serves ibug68, inner51, five",
+        ),
+        (
+            json!({"landmarks": ok, "method": "magic"}),
+            422,
+            "unknown method \"magic\"",
+        ),
+        (
+            json!({"landmarks": ok, "model": "nope"}),
+            404,
+            "unknown model \"nope\"",
+        ),
+        (
+            json!({"landmarks": ok, "camera": {"fx": -1, "fy": 1, "cx": 0, "cy": 0}}),
+            422,
+            "focal lengths must be positive",
+        ),
+        (
+            json!({"landmarks": ok, "camera": {"fx": 1}}),
+            422,
+            "missing field `fy`",
+        ),
+        (
+            json!({"landmarks": ok, "method": "regression", "camera": {"fx": 900, "fy": 900, "cx": 0, "cy": 0}}),
+            422,
+            "weak-perspective only",
+        ),
+        (
+            json!({"landmarks": "all of them"}),
+            422,
+            "landmarks: expected an array of landmarks, each [x, y] (pixels) or null, found a string",
+        ),
+        (
+            json!({"landmarks": [[1, 2], {"x": 1}]}),
+            422,
+            "landmark 1 must be [x, y] numbers or null, found an object",
+        ),
+        (
+            json!({"landmarks": [[1, 2], [3, [4]]]}),
+            422,
+            "landmark 1 y must be a number, found an array",
+        ),
+        (
+            json!({"landmarks": [[1, 2], [3, "4"]]}),
+            422,
+            "landmark 1 y is the string \"4\"",
+        ),
+        (
+            json!({"landmarks": [[1, 2, 3]]}),
+            422,
+            "landmark 0 must be [x, y] numbers or null: it has more than 2",
+        ),
+        (
+            json!({"landmarks": [["NaN", 2]]}),
+            422,
+            "not a finite number",
+        ),
+        (
+            json!({"landmarks": null, "scheme": null, "method": null, "model": null, "camera": null, "id": null}),
+            422,
+            "landmarks: expected an array of landmarks, each [x, y] (pixels) or null, found null",
+        ),
+        (
+            json!({"landmarks": ok, "scheme": 68}),
+            422,
+            "scheme: invalid type: integer",
+        ),
+        (
+            json!({"landmarks": ok, "id": {"a": 1}}),
+            422,
+            "id as a string or a number",
+        ),
+        (
+            json!({"landmarks": ok, "methd": "fit"}),
+            422,
+            "unknown field `methd`",
+        ),
+        (
+            json!({"landmarks": ok, "landmark_style": "sketch"}),
+            422,
+            "unknown landmark style \"sketch\"",
+        ),
+        (
+            json!({"scheme": "ibug68"}),
+            422,
+            "missing field `landmarks`",
+        ),
+        (json!([1, 2]), 422, "the body must be a JSON object"),
+        (json!(null), 422, "the body must be a JSON object"),
+        (json!("landmarks"), 422, "the body must be a JSON object"),
+    ];
+    for (body, status, want) in &json_cases {
+        let (s, v) = post(&c, &url, body).await;
+        let msg = v["error"]["message"].as_str().unwrap_or_default();
+        assert_eq!(s.as_u16(), *status, "{body}: {v}");
+        assert!(msg.contains(want), "{body}: {msg:?} lacks {want:?}");
+    }
+    // Bodies that are not JSON values of ours.
+    let raw_cases: [(&str, &[u8], u16, &str); 9] = [
+        ("application/json", b"", 400, "empty request body"),
+        (
+            "application/json",
+            b"{\"landmarks\": [[1, 2]",
+            400,
+            "malformed JSON",
+        ),
+        (
+            "application/json",
+            b"{landmarks: []}",
+            400,
+            "malformed JSON: key must be a string",
+        ),
+        (
+            "application/json",
+            b"{\"landmarks\": [[1, NaN]]}",
+            422,
+            "NaN and Infinity are not JSON numbers",
+        ),
+        (
+            "application/json",
+            b"{\"landmarks\": [[Infinity, 1]]}",
+            422,
+            "NaN and Infinity are not JSON numbers",
+        ),
+        (
+            "application/json",
+            b"{\"landmarks\": [[1e400, 1]]}",
+            422,
+            "landmark 0 x = 1e400 is out of range for a 64-bit float",
+        ),
+        (
+            "application/json",
+            b"{\"landmarks\": []} trailing",
+            400,
+            "trailing characters",
+        ),
+        (
+            "text/plain",
+            b"{}",
+            415,
+            "is not JSON: send Content-Type: application/json",
+        ),
+        (
+            "application/x-www-form-urlencoded",
+            b"landmarks=1",
+            415,
+            "send Content-Type: application/json",
+        ),
+    ];
+    for (ct, body, status, want) in raw_cases {
+        let (s, text) = raw_post(server.addr, "/v1/pose", ct, body);
+        assert_eq!(s, status, "{}: {text}", String::from_utf8_lossy(body));
+        assert!(
+            text.contains(want),
+            "{}: {text}",
+            String::from_utf8_lossy(body)
+        );
+    }
+    let r = c.post(&url).body("{}").send().await.unwrap();
+    assert_eq!(r.status(), StatusCode::UNSUPPORTED_MEDIA_TYPE);
+    assert!(r.text().await.unwrap().contains("missing Content-Type"));
+    // Over the body limit, declared or streamed.
+    let big = json!({"faces": vec![json!({"landmarks": face68(0.0, 0.0, 0.0)}); 40]});
+    let (s, v) = post(&c, &server.url("/v1/pose:batch"), &big).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE, "{v}");
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("over the limit of 65536 bytes (--max-body)")
+    );
+    // Declared far over the limit, or with `Expect: 100-continue`: answered before the body.
+    for extra in ["", "Expect: 100-continue\r\n"] {
+        let (s, text) = raw_head_only_post(server.addr, "/v1/pose", 50_000_000, extra);
+        assert_eq!(s, 413, "{extra}: {text}");
+        assert!(text.contains("50000000 bytes is over the limit"), "{text}");
+    }
+    let (s, text) = raw_chunked_post(server.addr, "/v1/pose", &[&[b' '; 40_000][..]; 3]);
+    assert_eq!(s, 413, "{text}");
+    assert!(text.contains("over the limit of 65536 bytes"), "{text}");
+    // Still alive and well.
+    let (s, v) = post(&c, &url, &json!({"landmarks": ok, "method": "fit"})).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_pose(&v, (10.0, 0.0, 0.0), 0.5);
+}
