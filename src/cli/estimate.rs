@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
-use facepose_core::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
+use facepose_core::estimate::Intrinsics;
+use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::record::{Landmarks, PoseRecord, shape_from_points};
 use facepose_core::shape::Shape2;
 use serde::Deserialize;

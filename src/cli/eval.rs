@@ -7,7 +7,6 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose_core::estimate::Method;
 use facepose_core::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
 use facepose_core::eval::paper::{
     PaperOptions, default_entries, paper_markdown, paper_protocol, robustness_markdown,
@@ -17,6 +16,7 @@ use facepose_core::eval::paper::{PaperReport, Perturbation};
 use facepose_core::eval::plot::{
     LandmarkPanel, Panel, Series, heat_maps_png, landmarks_png, line_chart_png,
 };
+use facepose_core::pose::Method;
 use facepose_core::shape::Scheme;
 use facepose_files::data::{AflwFace, data_dir, load_aflw, load_population};
 

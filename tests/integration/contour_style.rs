@@ -2,9 +2,9 @@
 //! points on the visible outline. `contour` style leaves those out and recovers the pose;
 //! `projected` style (the default, right for 3D-style landmarks) is pulled by them.
 
-use facepose_core::estimate::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
 use facepose_core::model::{PoseModel, default_model};
+use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::shape::Shape2;
 use nalgebra::Vector2;
 

@@ -8,12 +8,12 @@ use crate::common;
 
 use std::process::Command;
 
-use facepose_core::estimate::Method;
 use facepose_core::eval::paper::{
     PaperEntry, PaperOptions, Perturbation, Stage, default_entries, paper_protocol,
     train_paper_model,
 };
 use facepose_core::model::PoseModel;
+use facepose_core::pose::Method;
 use facepose_core::shape::ibug68;
 use facepose_core::synth::{AngleRange, PoseGrid};
 use facepose_files::data::load_population;

@@ -12,9 +12,10 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
-use facepose_core::estimate::{FitOptions, Method, estimate, fit_rigid};
+use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
+use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::{Shape2, ibug68};
 use nalgebra::Vector2;
 use rand::{SeedableRng, rngs::StdRng};

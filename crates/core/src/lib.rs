@@ -14,6 +14,7 @@ pub mod geometry;
 pub mod hpr;
 pub mod model;
 pub mod parallel;
+pub mod pose;
 pub mod record;
 pub mod sfm;
 pub mod shape;

@@ -12,9 +12,10 @@
 //! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision.
 
 use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
-use facepose_core::estimate::{FitOptions, Method, estimate, fit_rigid};
+use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
+use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_service::grpc::landmark_messages;
 use facepose_service::http::parse_pose_request;

@@ -240,7 +240,7 @@ fn face_result(
     points: &mut Vec<Option<[f64; 2]>>,
 ) -> (
     proto::FaceResult,
-    Result<facepose_core::estimate::Method, ErrorKind>,
+    Result<facepose_core::pose::Method, ErrorKind>,
 ) {
     let estimate =
         landmarks_into(face, points).and_then(|()| estimate_face(model, &face_spec(face, points)));

@@ -27,7 +27,7 @@ use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle};
 
 use super::errors::ErrorKind;
 use super::registry::{ModelSet, ServedModel};
-use facepose_core::estimate::Method;
+use facepose_core::pose::Method;
 
 /// Latency buckets, seconds: 50 µs to 10 s.
 const BUCKETS: [f64; 17] = [

@@ -7,7 +7,8 @@ use std::time::Instant;
 use super::errors::ApiError;
 use super::registry::ServedModel;
 
-use facepose_core::estimate::{EstimateOptions, Intrinsics, LandmarkStyle, Method, estimate_with};
+use facepose_core::estimate::Intrinsics;
+use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::record::{PoseRecord, shape_from_points};
 
 /// One face as a transport hands it over. Empty strings mean "not given".

@@ -6,10 +6,10 @@
 use serde::Serialize;
 
 use crate::data::AflwFace;
-use crate::estimate::{Method, estimate};
 use crate::geometry::convention::wrap_deg;
 use crate::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
 use crate::model::PoseModel;
+use crate::pose::{Method, estimate};
 use crate::shape::{Shape2, ibug68};
 
 /// Where the landmarks come from.

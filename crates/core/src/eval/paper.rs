@@ -34,7 +34,6 @@ use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::estimate::{Method, estimate};
 use crate::geometry::convention::wrap_deg;
 use crate::geometry::procrustes::centre3;
 use crate::geometry::{EulerAngles, geodesic_deg};
@@ -42,6 +41,7 @@ use crate::hpr::PaperHpr;
 use crate::model::{
     BasisSource, PoseModel, RegressionParams, Subset, TrainOptions, train_from_population,
 };
+use crate::pose::{Method, estimate};
 use crate::shape::{Scheme, Shape2};
 use crate::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
 
@@ -350,11 +350,7 @@ struct Acc {
 
 impl Acc {
     /// Adds one estimate; returns the mean of its yaw and pitch absolute errors.
-    fn add(
-        &mut self,
-        result: Result<crate::estimate::Estimate>,
-        truth: &EulerAngles,
-    ) -> Option<f64> {
+    fn add(&mut self, result: Result<crate::pose::Estimate>, truth: &EulerAngles) -> Option<f64> {
         let Ok(e) = result else {
             self.failures += 1;
             return None;

@@ -12,8 +12,8 @@ use serde::de;
 use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::error::{Error, Result};
-use crate::estimate::{Estimate, Method};
 use crate::geometry::rotation_rows;
+use crate::pose::{Estimate, Method};
 use crate::shape::Shape2;
 
 /// Landmarks as sent: `[[x, y] | null, ...]`. Deserializing names the first bad landmark by

@@ -8,11 +8,11 @@ use std::str::FromStr;
 use nalgebra::{Rotation3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::fit::{FitOptions, Hidden, fit_rigid};
-use super::geometric::estimate_geometric;
-use super::morph_fit::{MorphOptions, fit_morphable};
-use super::perspective::{Intrinsics, refine_perspective};
 use crate::error::{Error, Result};
+use crate::estimate::fit::{FitOptions, Hidden, fit_rigid};
+use crate::estimate::geometric::estimate_geometric;
+use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
+use crate::estimate::perspective::{Intrinsics, refine_perspective};
 use crate::geometry::EulerAngles;
 use crate::geometry::image_to_plane;
 use crate::model::{PoseModel, Subset, SubsetMap};
@@ -216,7 +216,7 @@ pub fn estimate_with(
         ..FitOptions::default()
     };
     // The fit methods keep their shape and camera for the perspective refinement.
-    let mut fitted: Option<(Cow<'_, [Vector3<f64>]>, super::fit::RigidFit)> = None;
+    let mut fitted: Option<(Cow<'_, [Vector3<f64>]>, crate::estimate::fit::RigidFit)> = None;
     let rotation = match method {
         Method::Fit => {
             // The visibility map is over the model's own points; subsets without contour
@@ -253,7 +253,7 @@ pub fn estimate_with(
             };
             fitted = Some((
                 Cow::Owned(shape),
-                super::fit::RigidFit {
+                crate::estimate::fit::RigidFit {
                     weights,
                     ..f.camera
                 },
