@@ -36,8 +36,46 @@ pub enum Method {
 }
 
 impl Method {
+    /// Every method, in the order of the docs and of listings.
+    pub const ALL: [Method; 5] = [
+        Method::Auto,
+        Method::Fit,
+        Method::FitShape,
+        Method::Regression,
+        Method::Geometry,
+    ];
+
     /// Every method name, for messages.
-    pub const NAMES: [&'static str; 5] = ["auto", "fit", "fit-shape", "regression", "geometry"];
+    pub const NAMES: [&'static str; Method::ALL.len()] = {
+        let mut names = [""; Method::ALL.len()];
+        let mut i = 0;
+        while i < names.len() {
+            names[i] = Method::ALL[i].name();
+            i += 1;
+        }
+        names
+    };
+
+    /// The name on every interface (kebab-case, as serde writes it).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Method::Auto => "auto",
+            Method::Fit => "fit",
+            Method::FitShape => "fit-shape",
+            Method::Regression => "regression",
+            Method::Geometry => "geometry",
+        }
+    }
+
+    /// Whether `model` has what the method needs (`fit-shape`: a shape basis).
+    pub fn is_supported_by(self, model: &PoseModel) -> bool {
+        self != Method::FitShape || model.morph.is_some()
+    }
+
+    /// The method's place in [`Method::ALL`], for tables indexed by method.
+    pub fn index(self) -> usize {
+        self as usize
+    }
 
     /// The method `auto` stands for, given the model, the subset the input is in and how many
     /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
@@ -46,7 +84,7 @@ impl Method {
     pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
         match self {
             Method::Auto
-                if model.morph.is_some()
+                if Method::FitShape.is_supported_by(model)
                     && subset.map != SubsetMap::Anchors
                     && present >= MIN_SHAPE_FIT_POINTS =>
             {
@@ -60,34 +98,22 @@ impl Method {
 
 impl fmt::Display for Method {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let i = [
-            Method::Auto,
-            Method::Fit,
-            Method::FitShape,
-            Method::Regression,
-            Method::Geometry,
-        ]
-        .iter()
-        .position(|m| m == self)
-        .unwrap_or(0);
-        f.write_str(Method::NAMES[i])
+        f.write_str(self.name())
     }
 }
 
 impl FromStr for Method {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "auto" => Ok(Method::Auto),
-            "fit" => Ok(Method::Fit),
-            "fit-shape" => Ok(Method::FitShape),
-            "regression" => Ok(Method::Regression),
-            "geometry" => Ok(Method::Geometry),
-            _ => Err(Error::param(
-                "method",
-                format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")),
-            )),
-        }
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                Error::param(
+                    "method",
+                    format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")),
+                )
+            })
     }
 }
 
@@ -229,7 +255,10 @@ pub fn estimate_with(
         }
         Method::FitShape => {
             let morph = model.morph.as_ref().ok_or_else(|| {
-                Error::param("method", "fit-shape needs a model with a morphable basis")
+                Error::param(
+                    "method",
+                    "fit-shape needs a model with a shape basis; this model has none",
+                )
             })?;
             let full = model.expand(subset, landmarks).ok_or_else(|| {
                 Error::param("method", format!("fit-shape does not take scheme {scheme}"))

@@ -3,13 +3,15 @@
 //! says where a request's time goes.
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use facepose_app::pose::{FaceSpec, estimate_face};
+use facepose_app::registry::load_models;
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::SubsetMap;
 use facepose_service::grpc::landmark_messages;
-use facepose_service::http::{PoseRequest, parse_batch_request, parse_json, parse_pose_request};
-use facepose_service::pose::{FaceSpec, estimate_face};
+use facepose_service::http::body::parse_json;
+use facepose_service::http::pose::{parse_batch_request, parse_pose_request};
+use facepose_service::http::wire::PoseRequest;
 use facepose_service::proto;
-use facepose_service::registry::load_models;
 use nalgebra::Vector2;
 use prost::Message;
 use serde_json::json;

@@ -11,6 +11,8 @@
 //! The face is the one of benches/estimate.rs: the default model's mean at yaw 25°, pitch -10°,
 //! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision.
 
+use facepose_app::pose::{FaceSpec, estimate_face};
+use facepose_app::registry::load_models;
 use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
@@ -18,10 +20,8 @@ use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_service::grpc::landmark_messages;
-use facepose_service::http::parse_pose_request;
-use facepose_service::pose::{FaceSpec, estimate_face};
+use facepose_service::http::pose::parse_pose_request;
 use facepose_service::proto;
-use facepose_service::registry::load_models;
 use nalgebra::Vector2;
 use prost::Message;
 use rand::{SeedableRng, rngs::StdRng};

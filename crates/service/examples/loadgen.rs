@@ -217,12 +217,12 @@ impl Decoder for Outcomes {
     }
 }
 
-/// `loadgen ceiling`: [`facepose_service::http::answer_batch`] on one body, over and over on
+/// `loadgen ceiling`: [`facepose_service::http::pose::answer_batch`] on one body, over and over on
 /// `a.threads` threads for `a.duration`, after a warm-up.
 fn ceiling(a: &Args) {
-    use facepose_service::config::Limits;
+    use facepose_app::Limits;
     let body = prost::bytes::Bytes::from(std::fs::read(&a.dir).expect("the batch body"));
-    let set = facepose_service::registry::load_models(None).expect("the default models");
+    let set = facepose_app::registry::load_models(None).expect("the default models");
     let limits = Limits {
         max_batch: usize::MAX,
         max_body: usize::MAX,
@@ -232,9 +232,10 @@ fn ceiling(a: &Args) {
         max_upload: 0,
         upload_timeout: Duration::from_secs(1),
     };
+    let metrics = facepose_app::metrics::Metrics::new();
     let answer = |b: &Bytes| {
-        facepose_service::http::answer_batch(b.clone(), &set, limits, None)
-            .unwrap_or_else(|e| panic!("the body is refused: {}", e.message))
+        facepose_service::http::pose::answer_batch(b.clone(), &set, limits, None, &metrics)
+            .unwrap_or_else(|e| panic!("the body is refused: {e}"))
     };
     let first: serde_json::Value = serde_json::from_slice(&answer(&body)).expect("JSON");
     let faces = first["succeeded"].as_u64().unwrap_or(0) + first["failed"].as_u64().unwrap_or(0);

@@ -7,7 +7,9 @@ use std::time::Duration;
 
 use clap::{Args, ValueEnum};
 
-use super::auth::{AdminToken, check_token};
+pub use facepose_app::Limits;
+use facepose_app::Settings;
+use facepose_app::auth::{AdminToken, check_token};
 
 /// Log line format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -108,16 +110,22 @@ pub struct Config {
     pub replica: String,
 }
 
-/// The request limits, shared by both transports.
-#[derive(Debug, Clone, Copy)]
-pub struct Limits {
-    pub max_batch: usize,
-    pub max_body: usize,
-    pub request_timeout: Duration,
-    pub max_concurrency: usize,
-    pub max_streams: usize,
-    pub max_upload: usize,
-    pub upload_timeout: Duration,
+impl Config {
+    /// What the application starts from: the models folder resolved (`--models`, else
+    /// `./models` if it exists, else none: the embedded default model only).
+    pub fn app_settings(&self) -> Settings {
+        Settings {
+            models: match &self.models {
+                Some(d) => Some(d.clone()),
+                None => Some(PathBuf::from("models")).filter(|d| d.is_dir()),
+            },
+            limits: self.limits,
+            admin_token: self.admin_token.clone(),
+            max_queued_jobs: self.max_queued_jobs,
+            registry_poll: self.registry_poll,
+            replica: self.replica.clone(),
+        }
+    }
 }
 
 /// A flag or variable with an unusable value.
@@ -227,7 +235,7 @@ impl ServeArgs {
                     return Err(bad("replica", "must be 1 to 253 characters"));
                 }
                 Some(r) => r.trim().to_string(),
-                None => super::job_records::replica_name(),
+                None => facepose_app::jobs::records::replica_name(),
             },
         })
     }

@@ -13,7 +13,6 @@ use std::time::{Duration, Instant};
 
 use super::versions::{self, StoredModel, VersionError};
 use super::{ModelSet, Registry, ServedModel, load_resolved, lock, resolve};
-use crate::metrics;
 
 /// How long a version that failed to load is left alone before the watcher tries it again.
 pub const RETRY_FAILED: Duration = Duration::from_secs(30);
@@ -92,7 +91,7 @@ impl Registry {
                 Outcome::Current(store) => {
                     let mut failures = lock(&self.failures);
                     if failures.remove(&store).is_some() {
-                        metrics::sync_problems(failures.len());
+                        self.metrics.sync_problems(failures.len());
                     }
                 }
                 Outcome::Loaded(m) => {
@@ -112,7 +111,7 @@ impl Registry {
             let before = failures.len();
             failures.retain(|model, _| reported.contains(model));
             if failures.len() != before {
-                metrics::sync_problems(failures.len());
+                self.metrics.sync_problems(failures.len());
             }
         }
         drop(changes);
@@ -128,7 +127,7 @@ impl Registry {
             tracing::error!(model = %problem.model, version = %problem.version,
                 error = %problem.message,
                 "cannot serve the active version of the models folder; still serving the previous one");
-            metrics::model_load_failed(&problem.model);
+            self.metrics.model_load_failed(&problem.model);
         }
         failures.insert(
             problem.model.clone(),
@@ -137,29 +136,26 @@ impl Registry {
                 retry_at: Instant::now() + RETRY_FAILED,
             },
         );
-        metrics::sync_problems(failures.len());
+        self.metrics.sync_problems(failures.len());
     }
 
-    /// Runs [`Registry::sync`] every `period` until the process ends (stale temporaries are
-    /// looked for about once a minute).
-    pub fn spawn_watcher(self: &Arc<Self>, period: Duration) {
+    /// Runs [`Registry::sync`] every `period`, for ever (stale temporaries are looked for
+    /// about once a minute); at once without a models folder.
+    pub async fn watch(self: Arc<Self>, period: Duration) {
         if self.dir.is_none() {
             return;
         }
-        let me = self.clone();
-        tokio::spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-            let mut cleaned = Instant::now();
-            loop {
-                tick.tick().await;
-                let clean = cleaned.elapsed() >= CLEAN_EVERY;
-                if clean {
-                    cleaned = Instant::now();
-                }
-                me.sync(clean).await;
+        let mut tick = tokio::time::interval(period);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let mut cleaned = Instant::now();
+        loop {
+            tick.tick().await;
+            let clean = cleaned.elapsed() >= CLEAN_EVERY;
+            if clean {
+                cleaned = Instant::now();
             }
-        });
+            self.sync(clean).await;
+        }
     }
 }
 

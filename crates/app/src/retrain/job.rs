@@ -8,10 +8,10 @@ use std::sync::Arc;
 use tracing::Instrument;
 
 use super::{JobSpec, Prepared, Work, too_few};
-use crate::AppState;
-use crate::errors::ApiError;
-use crate::jobs::{Job, JobStage, JobState, Slot, now_rfc3339};
-use crate::pose::on_blocking_pool;
+use crate::blocking::on_blocking_pool;
+use crate::error::ServiceError;
+use crate::jobs::{Job, JobStage, JobState, Jobs, Slot, now_rfc3339};
+use crate::registry::Registry;
 use facepose_core::model::bundle::{Bundle, Provenance, SourceFile};
 use facepose_core::model::validate::{
     Dropped, ValidatedShapes, ValidationOptions, reconstruct_subject, validate_shapes,
@@ -19,18 +19,27 @@ use facepose_core::model::validate::{
 use facepose_core::model::{BasisSource, train_from_population};
 use facepose_core::shape::Shape2;
 
+/// What a job works with: the registry it writes into and the job table it reports to.
+#[derive(Debug, Clone)]
+pub struct Trainer {
+    pub registry: Arc<Registry>,
+    pub jobs: Arc<Jobs>,
+    /// The span of the server the job runs in (its log lines are the server's).
+    pub span: tracing::Span,
+}
+
 /// Registers an accepted upload as a job and starts it; the job holds `slot` (taken with
-/// [`crate::jobs::Jobs::reserve`] before the upload was read) until it ends.
-pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result<Job, ApiError> {
+/// [`Jobs::reserve`] before the upload was read) until it ends.
+pub fn submit(trainer: &Trainer, p: Prepared, slot: Slot) -> Result<Job, ServiceError> {
     let spec = p.spec;
-    if let Some(e) = state
+    if let Some(e) = trainer
         .registry
         .snapshot()
         .name_conflict(&spec.model, &spec.model)
     {
         return Err(e);
     }
-    let job = state.jobs.create(
+    let job = trainer.jobs.create(
         &spec.model,
         spec.kind,
         spec.uploaded,
@@ -42,13 +51,13 @@ pub fn submit_reserved(state: &Arc<AppState>, p: Prepared, slot: Slot) -> Result
     )?;
     tracing::info!(job = %job.id, model = %spec.model, kind = spec.kind, uploaded = spec.uploaded,
         "retraining job accepted");
-    // The job outlives the request: its own span, not a child of the request's.
-    let span = tracing::info_span!(parent: None, "job", id = %job.id, model = %spec.model);
-    let (state, id) = (state.clone(), job.id.clone());
+    // The job outlives the request: its own span, a child of the server's, not the request's.
+    let span = tracing::info_span!(parent: &trainer.span, "job", id = %job.id, model = %spec.model);
+    let (trainer, id) = (trainer.clone(), job.id.clone());
     tokio::spawn(
         async move {
-            run(state.clone(), id.clone(), Arc::new(spec), p.work).await;
-            state.jobs.task_ended(&id);
+            run(&trainer, &id, Arc::new(spec), p.work).await;
+            trainer.jobs.task_ended(&id);
             drop(slot);
         }
         .instrument(span),
@@ -63,7 +72,7 @@ fn reconstruct_all(
     views: &[(usize, Vec<Shape2>)],
     mut dropped: Vec<Dropped>,
     progress: impl Fn(f64),
-) -> Result<ValidatedShapes, ApiError> {
+) -> Result<ValidatedShapes, ServiceError> {
     let mut shapes = Vec::new();
     let mut index = Vec::new();
     for (done, (k, v)) in views.iter().enumerate() {
@@ -98,33 +107,29 @@ fn reconstruct_all(
 
 /// Runs an accepted job to its end (after the jobs accepted before it, unless it is cancelled
 /// while it waits); every outcome is recorded in the job table.
-pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Work) {
-    let trainer = tokio::select! {
+async fn run(trainer: &Trainer, id: &str, spec: Arc<JobSpec>, work: Work) {
+    let jobs = &trainer.jobs;
+    let permit = tokio::select! {
         biased;
-        () = state.jobs.cancelled(&id) => None,
-        permit = state.jobs.trainer() => permit,
+        () = jobs.cancelled(id) => None,
+        permit = jobs.trainer() => permit,
     };
-    let Some(_trainer) = trainer else {
+    let Some(_permit) = permit else {
         tracing::info!("retraining job cancelled while queued");
         return;
     };
-    match steps(&state, &id, &spec, work).await {
+    match steps(trainer, id, &spec, work).await {
         Ok(Some(version)) => {
             tracing::info!(version = %version, activated = spec.activate, "retraining job succeeded");
-            state.jobs.succeed(&id);
+            jobs.succeed(id);
         }
         Ok(None) => tracing::info!("retraining job cancelled"),
-        Err(e)
-            if state
-                .jobs
-                .get(&id)
-                .is_ok_and(|j| j.state == JobState::Cancelled) =>
-        {
-            tracing::info!(error = %e.message, "cancelled retraining job stopped on an error");
+        Err(e) if jobs.get(id).is_ok_and(|j| j.state == JobState::Cancelled) => {
+            tracing::info!(error = %e, "cancelled retraining job stopped on an error");
         }
         Err(e) => {
-            tracing::warn!(error = %e.message, "retraining job failed");
-            state.jobs.fail(&id, e.message);
+            tracing::warn!(error = %e, "retraining job failed");
+            jobs.fail(id, e.to_string());
         }
     }
 }
@@ -132,22 +137,22 @@ pub async fn run(state: Arc<AppState>, id: String, spec: Arc<JobSpec>, work: Wor
 /// The job's steps; the version written, or `None` when the job was cancelled (checked as
 /// each stage starts; the last chance is before writing).
 async fn steps(
-    state: &Arc<AppState>,
+    trainer: &Trainer,
     id: &str,
     spec: &Arc<JobSpec>,
     work: Work,
-) -> Result<Option<String>, ApiError> {
-    let jobs = &state.jobs;
+) -> Result<Option<String>, ServiceError> {
+    let jobs = &trainer.jobs;
     let validated = match work {
         Work::Shapes(v) => v,
         Work::Subjects { views, dropped } => {
             if !jobs.stage(id, JobStage::Validating, 0.0) {
                 return Ok(None);
             }
-            let (st, jid, sp) = (state.clone(), id.to_string(), spec.clone());
+            let (table, jid, sp) = (jobs.clone(), id.to_string(), spec.clone());
             let v = on_blocking_pool("structure from motion", move || {
                 reconstruct_all(&sp, &views, dropped, |f| {
-                    st.jobs.update(&jid, |j| j.progress = 0.3 * f);
+                    table.update(&jid, |j| j.progress = 0.3 * f);
                 })
             })
             .await?;
@@ -166,14 +171,14 @@ async fn steps(
     let model = on_blocking_pool("training", move || {
         let basis = BasisSource::Pca(sp.options.components);
         train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
-            .map_err(|e| ApiError::invalid(format!("training failed: {e}")))
+            .map_err(|e| ServiceError::invalid(format!("training failed: {e}")))
     })
     .await?;
     if !jobs.stage(id, JobStage::Writing, 0.85) {
         return Ok(None);
     }
     let (sp, job_id) = (spec.clone(), id.to_string());
-    let (version, _) = state
+    let (version, _) = trainer
         .registry
         .write_version(&spec.model, move |version| {
             Bundle::from_model(
@@ -184,26 +189,22 @@ async fn steps(
                 &now_rfc3339(),
                 provenance(&sp, &job_id, kept),
             )
-            .map_err(|e| ApiError::internal(format!("the trained model has no bundle: {e}")))
+            .map_err(|e| ServiceError::internal(format!("the trained model has no bundle: {e}")))
         })
         .await?;
     jobs.update(id, |j| j.version = Some(version.clone()));
     if spec.activate {
         // Not cancellable once writing: the stage always starts.
         let _ = jobs.stage(id, JobStage::Activating, 0.9);
-        state
+        trainer
             .registry
             .activate(&spec.model, &version)
             .await
             .map_err(|e| {
-                ApiError::new(
-                    e.kind,
-                    format!(
-                        "version {version} was written but not activated: {}; activate it or \
-                         another version through the API",
-                        e.message
-                    ),
-                )
+                ServiceError::Conflict(format!(
+                    "version {version} was written but not activated: {e}; activate it or \
+                     another version through the API"
+                ))
             })?;
     }
     Ok(Some(version))

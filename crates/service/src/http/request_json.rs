@@ -11,7 +11,7 @@
 
 use serde::de::DeserializeOwned;
 
-use super::http::{BatchFace, BatchRequest, PoseRequest};
+use super::wire::{BatchFace, BatchRequest, PoseRequest};
 use facepose_core::record::{Landmarks, parse_landmarks_at, skip_ws};
 
 /// Reads a `POST /v1/pose` body, or `None` (see the module doc).

@@ -5,15 +5,15 @@
 use facepose_core::shape::Point3;
 use sha2::Digest;
 
-use super::{RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
-use crate::errors::{ApiError, ErrorKind};
 use crate::proto::{self, retrain_chunk::Part};
+use facepose_app::error::ServiceError;
+use facepose_app::retrain::{RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
 use facepose_core::shape::Scheme;
 
-fn raw_grid(g: &proto::PoseGrid, what: &str) -> Result<RawGrid, ApiError> {
+fn raw_grid(g: &proto::PoseGrid, what: &str) -> Result<RawGrid, ServiceError> {
     let r = |a: &Option<proto::AngleRange>, name: &str| {
         a.map(|a| [a.min, a.max, a.step]).ok_or_else(|| {
-            ApiError::invalid(format!("options {what}: set {name} (min, max, step)"))
+            ServiceError::invalid(format!("options {what}: set {name} (min, max, step)"))
         })
     };
     Ok(RawGrid {
@@ -24,7 +24,7 @@ fn raw_grid(g: &proto::PoseGrid, what: &str) -> Result<RawGrid, ApiError> {
 }
 
 /// The header's options as raw options.
-pub fn options_from_proto(o: &proto::TrainingOptions) -> Result<RawOptions, ApiError> {
+pub fn options_from_proto(o: &proto::TrainingOptions) -> Result<RawOptions, ServiceError> {
     Ok(RawOptions {
         grid: (!o.grid.is_empty()).then(|| o.grid.clone()),
         custom_grid: match &o.coarse {
@@ -37,7 +37,7 @@ pub fn options_from_proto(o: &proto::TrainingOptions) -> Result<RawOptions, ApiE
                     .collect::<Result<_, _>>()?,
             )),
             None if !o.bins.is_empty() => {
-                return Err(ApiError::invalid(
+                return Err(ServiceError::invalid(
                     "options: bins need a coarse grid (set options.coarse)",
                 ));
             }
@@ -78,36 +78,38 @@ impl ChunkCollector {
     }
 
     /// Adds one message.
-    pub fn push(&mut self, chunk: proto::RetrainChunk) -> Result<(), ApiError> {
+    pub fn push(&mut self, chunk: proto::RetrainChunk) -> Result<(), ServiceError> {
         use prost::Message;
         let encoded = chunk.encode_to_vec();
         self.bytes += encoded.len();
         if self.bytes > self.limit {
-            return Err(ApiError::new(
-                ErrorKind::PayloadTooLarge,
-                format!(
-                    "the upload is over the limit of {} bytes (--max-upload): send fewer shapes",
-                    self.limit
-                ),
-            ));
+            return Err(ServiceError::TooLarge {
+                what: "the upload",
+                size: None,
+                limit: self.limit,
+                flag: "--max-upload",
+                hint: "send fewer shapes",
+            });
         }
         self.hasher.update(&encoded);
         match chunk.part {
-            None => Err(ApiError::invalid(
+            None => Err(ServiceError::invalid(
                 "empty RetrainChunk: set header, shapes or subjects",
             )),
             Some(Part::Header(h)) => {
                 if self.upload.is_some() {
-                    return Err(ApiError::invalid("a second RetrainHeader: send one, first"));
+                    return Err(ServiceError::invalid(
+                        "a second RetrainHeader: send one, first",
+                    ));
                 }
                 let scheme = match (h.scheme.is_empty(), h.scheme_json.is_empty()) {
                     (_, true) => Some(SchemeSpec::Name(h.scheme)),
                     (true, false) => Some(SchemeSpec::Definition(Box::new(
                         serde_json::from_str::<Scheme>(&h.scheme_json)
-                            .map_err(|e| ApiError::invalid(format!("scheme_json: {e}")))?,
+                            .map_err(|e| ServiceError::invalid(format!("scheme_json: {e}")))?,
                     ))),
                     (false, false) => {
-                        return Err(ApiError::invalid(
+                        return Err(ServiceError::invalid(
                             "set scheme (a built-in name) or scheme_json, not both",
                         ));
                     }
@@ -128,14 +130,14 @@ impl ChunkCollector {
                 });
                 Ok(())
             }
-            Some(_) if self.upload.is_none() => Err(ApiError::invalid(
+            Some(_) if self.upload.is_none() => Err(ServiceError::invalid(
                 "the first RetrainChunk must be the header",
             )),
             Some(Part::Shapes(c)) => {
                 let base = self.shapes.len();
                 for (k, s) in c.shapes.into_iter().enumerate() {
                     if s.coords.len() % 3 != 0 {
-                        return Err(ApiError::invalid(format!(
+                        return Err(ServiceError::invalid(format!(
                             "shapes[{}]: {} coordinates; give x, y, z per point",
                             base + k,
                             s.coords.len()
@@ -170,9 +172,9 @@ impl ChunkCollector {
     }
 
     /// The upload, once the stream has ended.
-    pub fn finish(self) -> Result<RawUpload, ApiError> {
+    pub fn finish(self) -> Result<RawUpload, ServiceError> {
         let mut u = self.upload.ok_or_else(|| {
-            ApiError::invalid("empty Retrain stream: send a RetrainHeader, then the shapes")
+            ServiceError::invalid("empty Retrain stream: send a RetrainHeader, then the shapes")
         })?;
         u.sha256 = format!("{:x}", self.hasher.finalize());
         u.both = !self.shapes.is_empty() && !self.subjects.is_empty();

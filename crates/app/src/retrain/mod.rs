@@ -8,17 +8,16 @@
 //! themselves (`model::validate`: counts, finite values, degenerate and mirrored shapes,
 //! outliers by Procrustes distance; for multi-view sets the per-subject view checks). Too few
 //! usable shapes is 422 with the report. Structure from motion and training run in the job;
-//! their failures are the job's `error`. [`chunks`] turns a gRPC `Retrain` stream into an
-//! upload.
+//! their failures are the job's `error`. The transports turn their uploads into a
+//! [`RawUpload`] (an HTTP JSON body, or a gRPC `Retrain` stream of chunks).
 
-pub mod chunks;
 pub mod job;
 pub mod options;
 
 use facepose_core::shape::Point3;
 
-use super::errors::ApiError;
-use super::registry::{DEFAULT_MODEL, version_error, versions::check_name};
+use crate::error::ServiceError;
+use crate::registry::{DEFAULT_MODEL, version_error, versions::check_name};
 use facepose_core::model::validate::{
     Dropped, ValidatedShapes, ValidationReport, subject_views, validate_shapes,
 };
@@ -119,32 +118,32 @@ impl Prepared {
     }
 }
 
-fn resolve_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ApiError> {
+fn resolve_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ServiceError> {
     match spec {
         None => Ok(facepose_core::shape::ibug68()),
         Some(SchemeSpec::Name(n)) if n.is_empty() => Ok(facepose_core::shape::ibug68()),
         Some(SchemeSpec::Name(n)) => Scheme::builtin(&n).ok_or_else(|| {
-            ApiError::invalid(format!(
+            ServiceError::invalid(format!(
                 "scheme {n:?} is not built in ({}); send a scheme definition instead",
                 Scheme::BUILTIN.join(", ")
             ))
         }),
         Some(SchemeSpec::Definition(s)) => {
             if s.len() > MAX_SCHEME_POINTS {
-                return Err(ApiError::invalid(format!(
+                return Err(ServiceError::invalid(format!(
                     "scheme: {} points; the limit is {MAX_SCHEME_POINTS}",
                     s.len()
                 )));
             }
             s.validate()
-                .map_err(|e| ApiError::invalid(format!("scheme: {e}")))?;
+                .map_err(|e| ServiceError::invalid(format!("scheme: {e}")))?;
             Ok(*s)
         }
     }
 }
 
 /// "only 3 of 12 shapes are usable ..." with the first reasons, and the report as details.
-pub(super) fn too_few(report: &ValidationReport, what: &str, min: usize) -> ApiError {
+pub(crate) fn too_few(report: &ValidationReport, what: &str, min: usize) -> ServiceError {
     let mut reasons: Vec<String> = report
         .dropped
         .iter()
@@ -161,12 +160,15 @@ pub(super) fn too_few(report: &ValidationReport, what: &str, min: usize) -> ApiE
     if !reasons.is_empty() {
         message.push_str(&format!(": {}", reasons.join("; ")));
     }
-    ApiError::invalid(message).with_details(serde_json::json!({ "validation": report }))
+    ServiceError::TooFewShapes {
+        message,
+        report: Box::new(report.clone()),
+    }
 }
 
 /// The checks answered at once (see the module docs). CPU work (Procrustes analysis of the
 /// whole set): run it on the blocking pool.
-pub fn prepare(raw: RawUpload) -> Result<Prepared, ApiError> {
+pub fn prepare(raw: RawUpload) -> Result<Prepared, ServiceError> {
     let model = raw
         .model
         .filter(|m| !m.is_empty())
@@ -174,7 +176,7 @@ pub fn prepare(raw: RawUpload) -> Result<Prepared, ApiError> {
     check_name(&model).map_err(version_error)?;
     let notes = raw.notes.unwrap_or_default();
     if notes.len() > MAX_NOTES {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "notes: {} bytes; at most {MAX_NOTES}",
             notes.len()
         )));
@@ -182,12 +184,12 @@ pub fn prepare(raw: RawUpload) -> Result<Prepared, ApiError> {
     let scheme = resolve_scheme(raw.scheme)?;
     let options = check_options(&raw.options, &scheme)?;
     if raw.both {
-        return Err(ApiError::invalid(
+        return Err(ServiceError::invalid(
             "give either \"shapes\" (3D shapes) or \"subjects\" (2D views per subject), not both",
         ));
     }
     let data = raw.data.ok_or_else(|| {
-        ApiError::invalid(
+        ServiceError::invalid(
             "no shapes: give \"shapes\" (3D shapes, model frame, mm) or \"subjects\" (2D views \
              per subject, rebuilt by structure from motion)",
         )
@@ -197,7 +199,7 @@ pub fn prepare(raw: RawUpload) -> Result<Prepared, ApiError> {
         UploadData::Subjects(s) => ("subjects", "subject", s.len()),
     };
     if uploaded < options.min_shapes {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "{uploaded} {what}s; at least {} are needed (options.min_shapes)",
             options.min_shapes
         )));
@@ -262,8 +264,8 @@ mod tests {
         s.name = "huge".into();
         s.points = (0..=MAX_SCHEME_POINTS).map(|k| format!("p{k}")).collect();
         let e = resolve_scheme(Some(SchemeSpec::Definition(Box::new(s)))).unwrap_err();
-        assert_eq!(e.kind, crate::errors::ErrorKind::InvalidArgument);
-        assert_eq!(e.message, "scheme: 1001 points; the limit is 1000");
+        assert_eq!(e.kind(), crate::error::ErrorKind::InvalidArgument);
+        assert_eq!(e.to_string(), "scheme: 1001 points; the limit is 1000");
         assert!(resolve_scheme(Some(SchemeSpec::Name("five".into()))).is_ok());
     }
 }

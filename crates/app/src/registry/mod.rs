@@ -33,7 +33,8 @@ use std::sync::{Arc, Mutex};
 
 use arc_swap::ArcSwap;
 
-use super::errors::{ApiError, ErrorKind};
+use crate::error::ServiceError;
+use crate::metrics::Metrics;
 pub use catalog::{Catalog, StoredVersions, VersionInfo, embedded_version};
 pub use changes::version_error;
 use facepose_core::model::bundle::{Bundle, BundleError, Provenance};
@@ -108,16 +109,10 @@ impl ServedModel {
 
     /// The methods it supports (`fit-shape` needs a shape basis).
     pub fn methods(&self) -> Vec<Method> {
-        [
-            Method::Auto,
-            Method::Fit,
-            Method::FitShape,
-            Method::Regression,
-            Method::Geometry,
-        ]
-        .into_iter()
-        .filter(|m| *m != Method::FitShape || self.model.morph.is_some())
-        .collect()
+        Method::ALL
+            .into_iter()
+            .filter(|m| m.is_supported_by(&self.model))
+            .collect()
     }
 }
 
@@ -169,34 +164,27 @@ impl ModelSet {
     }
 
     /// The model named `name`, or the default one for `None` or an empty name.
-    pub fn get(&self, name: Option<&str>) -> Result<&Arc<ServedModel>, ApiError> {
+    pub fn get(&self, name: Option<&str>) -> Result<&Arc<ServedModel>, ServiceError> {
         let name = name.filter(|n| !n.is_empty()).unwrap_or(&self.default);
-        self.models.get(name).ok_or_else(|| {
-            ApiError::new(
-                ErrorKind::NotFound,
-                format!(
-                    "unknown model {name:?}; loaded models: {}",
-                    self.models.keys().cloned().collect::<Vec<_>>().join(", ")
-                ),
-            )
-        })
+        self.models
+            .get(name)
+            .ok_or_else(|| ServiceError::UnknownModel {
+                name: name.to_string(),
+                loaded: self.models.keys().cloned().collect(),
+            })
     }
 
     /// Why `name` cannot be served from the folder entry `store`: a model of that name is
     /// already served from another folder.
-    pub fn name_conflict(&self, name: &str, store: &str) -> Option<ApiError> {
+    pub fn name_conflict(&self, name: &str, store: &str) -> Option<ServiceError> {
         let other = self.models.get(name)?;
         let other_store = other.store.as_deref()?;
         (other_store != store).then(|| {
-            ApiError::new(
-                ErrorKind::Conflict,
-                format!(
-                    "model {name:?} is already served from the folder {other_store:?} ({}); \
-                     the folder {store:?} cannot serve a model of the same name: rename one of \
-                     them",
-                    other.source
-                ),
-            )
+            ServiceError::Conflict(format!(
+                "model {name:?} is already served from the folder {other_store:?} ({}); the \
+                 folder {store:?} cannot serve a model of the same name: rename one of them",
+                other.source
+            ))
         })
     }
 
@@ -243,16 +231,23 @@ pub struct Registry {
     meta: Arc<Mutex<catalog::MetaCache>>,
     /// Refreshes of the catalog: serialized and coalesced ([`catalog`]).
     refresh: catalog::Refresh,
+    metrics: Metrics,
 }
 
 impl Registry {
-    /// A registry without a models folder (the set never changes).
+    /// A registry without a models folder (the set never changes), with metrics of its own.
     pub fn new(set: ModelSet) -> Self {
         Self::with_dir(set, None)
     }
 
-    /// A registry following the models folder `dir`.
+    /// A registry following the models folder `dir`, with metrics of its own.
     pub fn with_dir(set: ModelSet, dir: Option<PathBuf>) -> Self {
+        Self::with_metrics(set, dir, Metrics::new())
+    }
+
+    /// A registry following the models folder `dir`, reporting into `metrics`.
+    pub fn with_metrics(set: ModelSet, dir: Option<PathBuf>, metrics: Metrics) -> Self {
+        metrics.models(set.iter().map(|m| &**m), set.default_name());
         Registry {
             current: ArcSwap::from_pointee(set),
             dir,
@@ -261,6 +256,7 @@ impl Registry {
             failures: Mutex::new(BTreeMap::new()),
             meta: Arc::new(Mutex::new(catalog::MetaCache::default())),
             refresh: catalog::Refresh::default(),
+            metrics,
         }
     }
 
@@ -283,14 +279,8 @@ impl Registry {
     }
 
     /// The models folder, or the error every registry change gives without one.
-    pub fn require_dir(&self) -> Result<&Path, ApiError> {
-        self.dir.as_deref().ok_or_else(|| {
-            ApiError::new(
-                ErrorKind::Conflict,
-                "this server has no models folder, so it cannot store versions: start it with \
-                 --models DIR (a folder shared by every replica)",
-            )
-        })
+    pub fn require_dir(&self) -> Result<&Path, ServiceError> {
+        self.dir.as_deref().ok_or(ServiceError::NoModelsFolder)
     }
 
     /// The folder's versions as last read.
@@ -311,13 +301,14 @@ impl Registry {
             .and_then(|s| old.by_store(s))
             .or_else(|| old.get(Some(&model.name)).ok())
             .cloned();
-        super::metrics::model_swapped(previous.as_deref(), &model, old.default_name());
+        self.metrics
+            .model_swapped(previous.as_deref(), &model, old.default_name());
         let mut failures = lock(&self.failures);
         if failures
             .remove(model.store.as_deref().unwrap_or(&model.name))
             .is_some()
         {
-            super::metrics::sync_problems(failures.len());
+            self.metrics.sync_problems(failures.len());
         }
         drop(failures);
         model
@@ -409,6 +400,8 @@ pub enum RegistryError {
     },
     #[error("no model named {0:?}")]
     NoDefault(String),
+    #[error("loading the models failed: {0}")]
+    Panicked(String),
     #[error("models folder: {0}")]
     Versions(#[from] VersionError),
     #[error("{}: holds model {found}, its place in the folder says {expected}", file.display())]
@@ -470,9 +463,7 @@ pub fn load_models(dir: Option<&Path>) -> Result<ModelSet, RegistryError> {
             .into_iter()
             .map(|h| {
                 h.join().unwrap_or_else(|_| {
-                    Err(RegistryError::NoDefault(
-                        "(a loader thread panicked)".into(),
-                    ))
+                    Err(RegistryError::Panicked("a loader thread panicked".into()))
                 })
             })
             .collect()
@@ -525,6 +516,7 @@ pub(crate) mod testing {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::ErrorKind;
 
     #[test]
     fn the_embedded_default_serves_without_a_folder() {
@@ -540,8 +532,8 @@ mod tests {
         );
         assert!(set.get(Some("")).is_ok());
         let err = set.get(Some("nope")).unwrap_err();
-        assert_eq!(err.kind, ErrorKind::NotFound);
-        assert!(err.message.contains("loaded models: default"), "{err}");
+        assert_eq!(err.kind(), ErrorKind::NotFound);
+        assert!(err.to_string().contains("loaded models: default"), "{err}");
         assert_eq!(embedded_version(), m.version);
     }
 
@@ -572,9 +564,10 @@ mod tests {
         let set = set.with_model(Arc::new(embedded_as("other", "default")));
         assert!(set.get(None).is_ok());
         let e = set.name_conflict("x", "y").unwrap();
-        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert_eq!(e.kind(), ErrorKind::Conflict);
         assert!(
-            e.message.contains("already served from the folder \"x\""),
+            e.to_string()
+                .contains("already served from the folder \"x\""),
             "{e}"
         );
         assert!(set.name_conflict("x", "x").is_none());

@@ -1,7 +1,7 @@
 //! Retraining jobs as every replica sharing a models folder sees them: each job's record in
 //! `MODELS/.jobs/<id>.json`, written by the replica that runs the job, read by the others.
 //!
-//! - The replica that accepted an upload keeps the job in memory ([`super::jobs`]) and writes
+//! - The replica that accepted an upload keeps the job in memory ([`super::Jobs`]) and writes
 //!   its record at every change of state or stage (progress at most once a second). A record
 //!   is replaced whole (temporary file, then rename), so a reader never sees half of one.
 //! - Another replica answers `GET /v1/models/jobs/{id}` from the record, and a cancel by
@@ -14,7 +14,7 @@
 //!   without ending it (killed, out of memory, cut off from the folder): the other replicas
 //!   answer it as failed, saying so, and refuse to cancel it, instead of showing it running
 //!   and accepting a cancel nobody will carry out.
-//! - Records untouched for [`JOB_TTL`](super::jobs::JOB_TTL) (jobs that ended then, or were
+//! - Records untouched for [`JOB_TTL`](super::JOB_TTL) (jobs that ended then, or were
 //!   lost) are removed when a job is created, with their claims; a claim goes with its job's
 //!   record, or after a day.
 //! - The hidden folder is skipped by the model catalog, as the folder's other hidden entries.
@@ -24,7 +24,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime};
 
-use super::jobs::{JOB_TTL, Job};
+use super::{JOB_TTL, Job};
 
 /// The folder of job records within a models folder.
 pub const JOBS_DIR: &str = ".jobs";

@@ -1,4 +1,4 @@
-//! The HTTP routes of the model registry: the versions of a model, activation (and rollback)
+//! The model routes: the served models, a model folder's versions, activation (and rollback)
 //! and deletion. Admin routes check the bearer token first ([`authorize`]).
 
 use std::sync::Arc;
@@ -6,30 +6,22 @@ use std::sync::Arc;
 use axum::Json;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use facepose_app::App;
 use serde::Serialize;
 use utoipa::ToSchema;
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 
-use super::AppState;
-use super::errors::{ApiError, ErrorBody, ErrorKind};
-use super::http::{ModelSummary, VersionSummary};
+use super::error::{ErrorBody, HttpError};
+use super::wire::{
+    ActivateResponse, ModelSummary, ModelsResponse, ProvenanceSummary, VersionsResponse,
+};
 
-type SharedState = Arc<AppState>;
-
-/// `GET /v1/models/{name}/versions`.
+/// `GET /v1/models/{name}`: a model with its provenance.
 #[derive(Debug, Serialize, ToSchema)]
-pub struct VersionsResponse {
-    pub name: String,
-    /// The folder's active version; `null` if none was ever activated.
-    pub active: Option<String>,
-    pub versions: Vec<VersionSummary>,
-}
-
-/// The answer of an activation: the model now served.
-#[derive(Debug, Serialize, ToSchema)]
-pub struct ActivateResponse {
+pub struct ModelDetail {
     #[serde(flatten)]
-    pub model: ModelSummary,
+    pub summary: ModelSummary,
+    pub provenance: ProvenanceSummary,
 }
 
 /// The OpenAPI security scheme of the admin routes.
@@ -45,13 +37,35 @@ impl utoipa::Modify for BearerAuth {
     }
 }
 
-/// Checks the admin bearer token of a request (401 / 403, see [`super::auth`]).
-pub fn authorize(st: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
-    st.admin.check(
+/// Checks the admin bearer token of a request (401 / 403, see `facepose_app::auth`).
+pub fn authorize(app: &App, headers: &HeaderMap) -> Result<(), HttpError> {
+    Ok(app.authorize(
         headers
             .get(header::AUTHORIZATION)
             .map(HeaderValue::as_bytes),
-    )
+    )?)
+}
+
+/// The loaded models.
+#[utoipa::path(get, path = "/v1/models", tag = "models",
+    responses((status = 200, body = ModelsResponse)))]
+pub async fn list_models(State(app): State<Arc<App>>) -> Json<ModelsResponse> {
+    Json(app.models_view().into())
+}
+
+/// One model, with its provenance.
+#[utoipa::path(get, path = "/v1/models/{name}", tag = "models",
+    params(("name" = String, Path, description = "The model's name")),
+    responses((status = 200, body = ModelDetail), (status = 404, body = ErrorBody)))]
+pub async fn get_model(
+    State(app): State<Arc<App>>,
+    Path(name): Path<String>,
+) -> Result<Json<ModelDetail>, HttpError> {
+    let detail = app.model_detail(&name)?;
+    Ok(Json(ModelDetail {
+        summary: detail.model.into(),
+        provenance: detail.provenance.into(),
+    }))
 }
 
 /// A model's versions in the models folder (also for a model not served yet).
@@ -59,36 +73,10 @@ pub fn authorize(st: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
     params(("name" = String, Path, description = "The model's folder name")),
     responses((status = 200, body = VersionsResponse), (status = 404, body = ErrorBody)))]
 pub async fn list_versions(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     Path(name): Path<String>,
-) -> Result<Json<VersionsResponse>, ApiError> {
-    st.registry.refresh_catalog().await;
-    versions_response(&st, &name).map(Json)
-}
-
-/// The versions of `name` from the catalog (shared with gRPC).
-pub fn versions_response(st: &AppState, name: &str) -> Result<VersionsResponse, ApiError> {
-    let catalog = st.registry.catalog();
-    let set = st.registry.snapshot();
-    let Some(stored) = catalog.models.get(name) else {
-        return Err(ApiError::new(
-            ErrorKind::NotFound,
-            format!(
-                "no model {name:?} in the models folder{}",
-                if st.registry.dir().is_none() {
-                    " (the server has no models folder)"
-                } else {
-                    ""
-                }
-            ),
-        ));
-    };
-    let served = set.by_store(name).map(|m| &**m);
-    Ok(VersionsResponse {
-        name: name.into(),
-        active: stored.active.clone(),
-        versions: super::http::version_summaries(Some(stored), served),
-    })
+) -> Result<Json<VersionsResponse>, HttpError> {
+    Ok(Json(app.versions(&name).await?.into()))
 }
 
 /// Activate a version: `POST /v1/models/{name}/versions/{version}:activate` (admin). Rolling
@@ -103,24 +91,20 @@ pub fn versions_response(st: &AppState, name: &str) -> Result<VersionsResponse, 
         (status = 404, description = "Unknown model or version", body = ErrorBody),
         (status = 409, description = "The version does not load, or no models folder", body = ErrorBody)))]
 pub async fn version_action(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     Path((name, version)): Path<(String, String)>,
     headers: HeaderMap,
-) -> Result<Json<ActivateResponse>, ApiError> {
-    authorize(&st, &headers)?;
+) -> Result<Json<ActivateResponse>, HttpError> {
+    authorize(&app, &headers)?;
     let Some(version) = version.strip_suffix(":activate") else {
-        return Err(ApiError::new(
-            ErrorKind::NotFound,
-            format!(
-                "no action in POST /v1/models/{name}/versions/{version}: to activate it, POST \
-                 /v1/models/{name}/versions/{version}:activate"
-            ),
-        ));
+        return Err(HttpError::NotFound(format!(
+            "no action in POST /v1/models/{name}/versions/{version}: to activate it, POST \
+             /v1/models/{name}/versions/{version}:activate"
+        )));
     };
-    let served = st.registry.activate(&name, version).await?;
-    let set = st.registry.snapshot();
+    let model = app.activate(&name, version).await?;
     Ok(Json(ActivateResponse {
-        model: super::http::model_summary(&served, &set, &st.registry.catalog()),
+        model: model.into(),
     }))
 }
 
@@ -135,11 +119,11 @@ pub async fn version_action(
         (status = 404, description = "Unknown model or version", body = ErrorBody),
         (status = 409, description = "The active version, the folder's own bundle or the built-in model", body = ErrorBody)))]
 pub async fn delete_version(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     Path((name, version)): Path<(String, String)>,
     headers: HeaderMap,
-) -> Result<StatusCode, ApiError> {
-    authorize(&st, &headers)?;
-    st.registry.delete(&name, &version).await?;
+) -> Result<StatusCode, HttpError> {
+    authorize(&app, &headers)?;
+    app.delete_version(&name, &version).await?;
     Ok(StatusCode::NO_CONTENT)
 }

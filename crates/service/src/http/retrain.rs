@@ -8,20 +8,18 @@ use axum::body::Body;
 use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
+use facepose_app::App;
+use facepose_app::error::ServiceError;
+use facepose_app::jobs::{Cancel, Job};
+use facepose_app::retrain::{RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
+use facepose_core::model::bundle::sha256_hex;
+use facepose_core::shape::Scheme;
 use serde::Deserialize;
 use utoipa::ToSchema;
 
-use super::AppState;
-use super::errors::{ApiError, ErrorBody, ErrorKind};
-use super::http::{discard_body, parse_json, read_body_limited, require_json};
-use super::http_registry::authorize;
-use super::jobs::{Cancel, Job};
-use super::pose::on_blocking_pool;
-use super::retrain::{self, RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
-use facepose_core::model::bundle::sha256_hex;
-use facepose_core::shape::Scheme;
-
-type SharedState = Arc<AppState>;
+use super::body::{discard_body, parse_json, read_body_limited, require_json};
+use super::error::{ErrorBody, HttpError};
+use super::models::authorize;
 
 /// One subject of a multi-view upload: its views, each one `[x, y]` (image pixels) or `null`
 /// per point of the scheme.
@@ -127,16 +125,16 @@ pub struct RetrainRequest {
 }
 
 impl RetrainRequest {
-    fn into_raw(self, sha256: String) -> Result<RawUpload, ApiError> {
+    fn into_raw(self, sha256: String) -> Result<RawUpload, ServiceError> {
         let scheme = match self.scheme {
             None => None,
             Some(serde_json::Value::String(s)) => Some(SchemeSpec::Name(s)),
             Some(v @ serde_json::Value::Object(_)) => Some(SchemeSpec::Definition(Box::new(
                 serde_json::from_value::<Scheme>(v)
-                    .map_err(|e| ApiError::invalid(format!("scheme: {e}")))?,
+                    .map_err(|e| ServiceError::invalid(format!("scheme: {e}")))?,
             ))),
             Some(_) => {
-                return Err(ApiError::invalid(
+                return Err(ServiceError::invalid(
                     "scheme: give a built-in scheme name or a scheme definition object",
                 ));
             }
@@ -147,14 +145,14 @@ impl RetrainRequest {
             Some(serde_json::Value::String(s)) => (Some(s), None),
             Some(v @ serde_json::Value::Object(_)) => {
                 let g: CustomGrid = serde_json::from_value(v)
-                    .map_err(|e| ApiError::invalid(format!("options.grid: {e}")))?;
+                    .map_err(|e| ServiceError::invalid(format!("options.grid: {e}")))?;
                 (
                     None,
                     Some(((&g.coarse).into(), g.bins.iter().map(Into::into).collect())),
                 )
             }
             Some(_) => {
-                return Err(ApiError::invalid(
+                return Err(ServiceError::invalid(
                     "options.grid: give \"wide\", \"paper\" or a grid object",
                 ));
             }
@@ -218,15 +216,15 @@ impl RetrainRequest {
     )
 )]
 pub async fn retrain(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     headers: HeaderMap,
     body: Body,
-) -> Result<Response, ApiError> {
-    let refused = authorize(&st, &headers)
-        .and_then(|()| st.registry.require_dir().map(drop))
+) -> Result<Response, HttpError> {
+    let refused = authorize(&app, &headers)
+        .and_then(|()| Ok(app.registry.require_dir().map(drop)?))
         .and_then(|()| require_json(&headers));
     // A place in the queue before the body is read: uploads in memory are bounded too.
-    let slot = match refused.and_then(|()| st.reserve_job()) {
+    let slot = match refused.and_then(|()| Ok(app.reserve_job()?)) {
         Ok(slot) => slot,
         Err(e) => {
             discard_body(&headers, body).await;
@@ -236,21 +234,24 @@ pub async fn retrain(
     let bytes = read_body_limited(
         &headers,
         body,
-        st.limits.max_upload,
+        app.limits.max_upload,
         "--max-upload",
         "send fewer shapes",
     )
     .await?;
-    let prepared = on_blocking_pool("checking the upload", move || {
-        let req: RetrainRequest = parse_json(&bytes)?;
-        let sha = sha256_hex(&bytes);
-        drop(bytes);
-        retrain::prepare(req.into_raw(sha)?)
-    })
-    .await?;
-    let job = retrain::job::submit_reserved(&st, prepared, slot)?;
+    let job = app
+        .retrain(
+            move || {
+                let req: RetrainRequest = parse_json(&bytes)?;
+                let sha = sha256_hex(&bytes);
+                drop(bytes);
+                Ok::<_, HttpError>(req.into_raw(sha)?)
+            },
+            slot,
+        )
+        .await?;
     let location = HeaderValue::from_str(&format!("/v1/models/jobs/{}", job.id))
-        .map_err(|e| ApiError::internal(e.to_string()))?;
+        .map_err(|e| ServiceError::internal(e.to_string()))?;
     Ok((
         StatusCode::ACCEPTED,
         [(header::LOCATION, location)],
@@ -264,13 +265,10 @@ pub async fn retrain(
     params(("id" = String, Path, description = "The job id from POST /v1/models")),
     responses((status = 200, body = Job), (status = 404, body = ErrorBody)))]
 pub async fn get_job(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     Path(id): Path<String>,
-) -> Result<Json<Job>, ApiError> {
-    // Another replica's job is read from the models folder: off the async workers.
-    Ok(Json(
-        on_blocking_pool("job look-up", move || st.jobs.get(&id)).await?,
-    ))
+) -> Result<Json<Job>, HttpError> {
+    Ok(Json(app.job(&id).await?))
 }
 
 /// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
@@ -285,41 +283,36 @@ pub async fn get_job(
         (status = 404, description = "Unknown job, or no action", body = ErrorBody),
         (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
 pub async fn job_action(
-    State(st): State<SharedState>,
+    State(app): State<Arc<App>>,
     Path(id): Path<String>,
     headers: HeaderMap,
-) -> Result<(StatusCode, Json<Job>), ApiError> {
-    authorize(&st, &headers)?;
+) -> Result<(StatusCode, Json<Job>), HttpError> {
+    authorize(&app, &headers)?;
     let Some(job) = id.strip_suffix(":cancel") else {
-        return Err(ApiError::new(
-            ErrorKind::NotFound,
-            format!(
-                "no action in POST /v1/models/jobs/{id}: to cancel the job, POST \
-                 /v1/models/jobs/{id}:cancel"
-            ),
-        ));
+        return Err(HttpError::NotFound(format!(
+            "no action in POST /v1/models/jobs/{id}: to cancel the job, POST \
+             /v1/models/jobs/{id}:cancel"
+        )));
     };
-    let job = job.to_string();
-    Ok(
-        match on_blocking_pool("job cancel", move || st.jobs.cancel(&job)).await? {
-            Cancel::Done(job) => (StatusCode::OK, Json(job)),
-            Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
-        },
-    )
+    Ok(match app.cancel_job(job).await? {
+        Cancel::Done(job) => (StatusCode::OK, Json(job)),
+        Cancel::Requested(job) => (StatusCode::ACCEPTED, Json(job)),
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Limits;
-    use crate::errors::ErrorKind;
-    use crate::registry::{Registry, load_models, testing::temp_root};
-    use crate::{auth, jobs, metrics, shutdown};
+    use crate::http::error::ErrorCode;
+    use facepose_app::auth::AdminToken;
+    use facepose_app::registry::load_models;
+    use facepose_app::{Limits, Settings};
     use std::time::Duration;
 
     #[tokio::test]
     async fn a_full_queue_refuses_an_upload_before_reading_it() {
-        let root = temp_root("queue");
+        let root = std::env::temp_dir().join(format!("facepose-queue-{}", std::process::id()));
+        std::fs::create_dir_all(&root).unwrap();
         let limits = Limits {
             max_batch: 10,
             max_body: 1 << 20,
@@ -329,20 +322,19 @@ mod tests {
             max_upload: 16,
             upload_timeout: Duration::from_secs(5),
         };
-        let st = Arc::new(AppState {
-            registry: Arc::new(Registry::with_dir(
-                load_models(Some(&root)).unwrap(),
-                Some(root.clone()),
-            )),
-            admin: auth::AdminToken::new("secret-token-for-tests"),
-            jobs: jobs::Jobs::new(0),
+        let settings = Settings {
+            models: Some(root.clone()),
             limits,
-            lifecycle: shutdown::Lifecycle::default(),
-            metrics: metrics::Metrics::install(),
-            permits: Arc::new(tokio::sync::Semaphore::new(4)),
-            streams: Arc::new(tokio::sync::Semaphore::new(4)),
-            openapi: String::new(),
-        });
+            admin_token: AdminToken::new("secret-token-for-tests"),
+            max_queued_jobs: 0,
+            registry_poll: Duration::from_secs(60),
+            replica: "test".into(),
+        };
+        let st = App::with_models(
+            settings,
+            load_models(Some(&root)).unwrap(),
+            tracing::Span::none(),
+        );
         let mut headers = HeaderMap::new();
         headers.insert(
             header::AUTHORIZATION,
@@ -357,19 +349,20 @@ mod tests {
         let e = retrain(State(st.clone()), headers.clone(), body())
             .await
             .unwrap_err();
-        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        assert_eq!(e.code(), ErrorCode::PayloadTooLarge, "{e}");
         // The only slot is taken (a job in progress): refused before the body is read.
         let held = st.jobs.reserve().unwrap();
         let e = retrain(State(st.clone()), headers.clone(), body())
             .await
             .unwrap_err();
-        assert_eq!(e.kind, ErrorKind::Overloaded, "{}", e.message);
-        assert!(e.message.contains("retry later"), "{}", e.message);
+        assert_eq!(e.code(), ErrorCode::Overloaded, "{e}");
+        assert!(e.message().contains("retry later"), "{e}");
         drop(held);
         let e = retrain(State(st.clone()), headers, body())
             .await
             .unwrap_err();
-        assert_eq!(e.kind, ErrorKind::PayloadTooLarge, "{}", e.message);
+        assert_eq!(e.code(), ErrorCode::PayloadTooLarge, "{e}");
+        st.stop().await;
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

@@ -15,22 +15,24 @@ use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::health_server::Health;
 use tonic_health::pb::{HealthCheckRequest, HealthCheckResponse};
 
-use super::AppState;
-use super::proto::pose_service_server::PoseServiceServer;
+use facepose_app::App;
+use facepose_app::error::ServiceError;
+
+use crate::proto::pose_service_server::PoseServiceServer;
 
 /// The gRPC name of the pose service.
 pub const POSE_SERVICE: &str =
-    <PoseServiceServer<super::grpc::PoseApi> as tonic::server::NamedService>::NAME;
+    <PoseServiceServer<super::PoseApi> as tonic::server::NamedService>::NAME;
 
 /// The health service.
 #[derive(Debug, Clone)]
 pub struct HealthApi {
-    state: Arc<AppState>,
+    app: Arc<App>,
 }
 
 impl HealthApi {
-    pub fn new(state: Arc<AppState>) -> Self {
-        HealthApi { state }
+    pub fn new(app: Arc<App>) -> Self {
+        HealthApi { app }
     }
 
     fn status(&self, service: &str) -> Result<ServingStatus, Status> {
@@ -39,7 +41,7 @@ impl HealthApi {
                 "unknown service {service:?}; known: \"\" (the server), {POSE_SERVICE}"
             )));
         }
-        Ok(if self.state.lifecycle.is_ready() {
+        Ok(if self.app.lifecycle.is_ready() {
             ServingStatus::Serving
         } else {
             ServingStatus::NotServing
@@ -70,7 +72,7 @@ impl Health for HealthApi {
         request: Request<HealthCheckRequest>,
     ) -> Result<Response<WatchStream>, Status> {
         let first = self.status(&request.into_inner().service)?;
-        let drained = self.state.lifecycle.drained();
+        let drained = self.app.lifecycle.drained();
         // SERVING now (if so), NOT_SERVING when the drain starts, then the end.
         let out = futures_util::stream::unfold(
             (Some(first), Some(Box::pin(drained))),
@@ -88,7 +90,7 @@ impl Health for HealthApi {
             },
         )
         .chain(futures_util::stream::once(async {
-            Err(super::errors::ApiError::shutting_down().into())
+            Err(super::error::status(&ServiceError::ShuttingDown))
         }));
         Ok(Response::new(Box::pin(out)))
     }

@@ -15,7 +15,7 @@
 use sha2::{Digest, Sha256};
 use subtle::ConstantTimeEq;
 
-use super::errors::{ApiError, ErrorKind};
+use crate::error::{ServiceError, Unauthenticated};
 
 /// The shortest token accepted at start.
 pub const MIN_TOKEN_LEN: usize = 16;
@@ -55,36 +55,24 @@ impl AdminToken {
     }
 
     /// Checks the value of an `Authorization` header (or gRPC `authorization` metadata).
-    pub fn check(&self, authorization: Option<&[u8]>) -> Result<(), ApiError> {
+    pub fn check(&self, authorization: Option<&[u8]>) -> Result<(), ServiceError> {
         let Some(expected) = &self.digest else {
-            return Err(ApiError::new(
-                ErrorKind::Forbidden,
-                "admin routes are disabled on this server: start it with FACEPOSE_ADMIN_TOKEN or \
-                 --admin-token-file to enable retraining, activation and deletion",
-            ));
+            return Err(ServiceError::AdminDisabled);
         };
         let Some(value) = authorization else {
-            return Err(unauthenticated(
-                "missing admin token: send Authorization: Bearer <token>",
-            ));
+            return Err(ServiceError::Unauthenticated(Unauthenticated::Missing));
         };
         let token = value
             .strip_prefix(b"Bearer ")
             .or_else(|| value.strip_prefix(b"bearer "))
-            .ok_or_else(|| {
-                unauthenticated("the Authorization header must be \"Bearer <token>\"")
-            })?;
+            .ok_or(ServiceError::Unauthenticated(Unauthenticated::NotBearer))?;
         let given: [u8; 32] = Sha256::digest(token.trim_ascii()).into();
         if bool::from(given.ct_eq(expected)) {
             Ok(())
         } else {
-            Err(unauthenticated("invalid admin token"))
+            Err(ServiceError::Unauthenticated(Unauthenticated::WrongToken))
         }
     }
-}
-
-fn unauthenticated(message: &str) -> ApiError {
-    ApiError::new(ErrorKind::Unauthenticated, message)
 }
 
 /// Checks a token read from the environment or a file: at least [`MIN_TOKEN_LEN`] visible
@@ -105,6 +93,7 @@ pub fn check_token(token: &str) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::error::ErrorKind;
 
     const TOKEN: &str = "0123456789abcdef-secret";
 
@@ -114,8 +103,11 @@ mod tests {
         let on = AdminToken::new(TOKEN);
         let bearer = format!("Bearer {TOKEN}");
         let e = off.check(Some(bearer.as_bytes())).unwrap_err();
-        assert_eq!(e.kind, ErrorKind::Forbidden);
-        assert_eq!(on.check(None).unwrap_err().kind, ErrorKind::Unauthenticated);
+        assert_eq!(e.kind(), ErrorKind::Forbidden);
+        assert_eq!(
+            on.check(None).unwrap_err().kind(),
+            ErrorKind::Unauthenticated
+        );
         for wrong in [
             "Bearer nope".to_string(),
             format!("Basic {TOKEN}"),
@@ -125,8 +117,8 @@ mod tests {
             "Bearer ".to_string(),
         ] {
             let e = on.check(Some(wrong.as_bytes())).unwrap_err();
-            assert_eq!(e.kind, ErrorKind::Unauthenticated, "{wrong}");
-            assert!(!e.message.contains(TOKEN), "{e}");
+            assert_eq!(e.kind(), ErrorKind::Unauthenticated, "{wrong}");
+            assert!(!e.to_string().contains(TOKEN), "{e}");
         }
         on.check(Some(bearer.as_bytes())).unwrap();
         on.check(Some(format!("bearer {TOKEN}").as_bytes()))

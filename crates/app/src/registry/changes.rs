@@ -10,8 +10,8 @@ use super::versions::{self, VersionError};
 use super::{
     DEFAULT_MODEL, Registry, Resolved, ServedModel, embedded_version, load_resolved, resolve,
 };
-use crate::errors::{ApiError, ErrorKind};
-use crate::pose::on_blocking_pool;
+use crate::blocking::on_blocking_pool;
+use crate::error::ServiceError;
 use facepose_core::model::bundle::Bundle;
 use facepose_files::store::StoreError;
 
@@ -28,7 +28,7 @@ impl Registry {
         self: &Arc<Self>,
         name: &str,
         version: &str,
-    ) -> Result<Arc<ServedModel>, ApiError> {
+    ) -> Result<Arc<ServedModel>, ServiceError> {
         let dir = self.require_dir()?.to_path_buf();
         versions::check_name(name).map_err(version_error)?;
         let me = self.clone();
@@ -41,7 +41,7 @@ impl Registry {
             served
         })
         .await
-        .map_err(|e| ApiError::internal(format!("activating a version failed: {e}")))?
+        .map_err(|e| ServiceError::internal(format!("activating a version failed: {e}")))?
     }
 
     /// The activation under the change lock.
@@ -50,11 +50,11 @@ impl Registry {
         dir: PathBuf,
         n: String,
         v: String,
-    ) -> Result<Arc<ServedModel>, ApiError> {
+    ) -> Result<Arc<ServedModel>, ServiceError> {
         let set = self.snapshot();
         let served = on_blocking_pool(
             "activating a version",
-            move || -> Result<ServedModel, ApiError> {
+            move || -> Result<ServedModel, ServiceError> {
                 let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
                 let source = resolve(stored.as_ref(), &n, &v).ok_or_else(|| {
                     version_error(with_embedded(VersionError::NotFound {
@@ -65,12 +65,9 @@ impl Registry {
                 })?;
                 let embedded = matches!(source, Resolved::Embedded);
                 let served = load_resolved(&n, &source).map_err(|e| {
-                    ApiError::new(
-                        ErrorKind::Conflict,
-                        format!(
-                            "version {v} of model {n:?} does not load, so it is not activated: {e}"
-                        ),
-                    )
+                    ServiceError::Conflict(format!(
+                        "version {v} of model {n:?} does not load, so it is not activated: {e}"
+                    ))
                 })?;
                 if let Some(e) = set.name_conflict(&served.name, &n) {
                     return Err(e);
@@ -90,8 +87,8 @@ impl Registry {
     pub async fn write_version(
         &self,
         name: &str,
-        make: impl FnOnce(&str) -> Result<Bundle, ApiError> + Send + 'static,
-    ) -> Result<(String, PathBuf), ApiError> {
+        make: impl FnOnce(&str) -> Result<Bundle, ServiceError> + Send + 'static,
+    ) -> Result<(String, PathBuf), ServiceError> {
         let dir = self.require_dir()?.to_path_buf();
         let n = name.to_string();
         let reserved = if name == DEFAULT_MODEL {
@@ -104,7 +101,7 @@ impl Registry {
             let reserved: Vec<&str> = reserved.iter().map(String::as_str).collect();
             versions::write_version(&dir, &n, &reserved, |v| {
                 make(v).map_err(|e| {
-                    let m = e.message.clone();
+                    let m = e.to_string();
                     failure = Some(e);
                     VersionError::Invalid(m)
                 })
@@ -117,7 +114,7 @@ impl Registry {
     }
 
     /// Deletes an inactive version of `name`.
-    pub async fn delete(&self, name: &str, version: &str) -> Result<(), ApiError> {
+    pub async fn delete(&self, name: &str, version: &str) -> Result<(), ServiceError> {
         let dir = self.require_dir()?.to_path_buf();
         versions::check_name(name).map_err(version_error)?;
         let (n, v) = (name.to_string(), version.to_string());
@@ -125,13 +122,10 @@ impl Registry {
             let stored = versions::scan_model(&dir, &n).map_err(version_error)?;
             let on_disk = stored.as_ref().is_some_and(|m| m.get(&v).is_some());
             if !on_disk && n == DEFAULT_MODEL && v == embedded_version() {
-                return Err(ApiError::new(
-                    ErrorKind::Conflict,
-                    format!(
-                        "version {v} of model {n:?} is the default model built into the binary; \
-                         it cannot be deleted"
-                    ),
-                ));
+                return Err(ServiceError::Conflict(format!(
+                    "version {v} of model {n:?} is the default model built into the binary; it \
+                     cannot be deleted"
+                )));
             }
             versions::delete_version(&dir, &n, &v).map_err(|e| version_error(with_embedded(e)))
         })
@@ -163,21 +157,18 @@ fn with_embedded(e: VersionError) -> VersionError {
 }
 
 /// A versions error as an API error.
-pub fn version_error(e: VersionError) -> ApiError {
+pub fn version_error(e: VersionError) -> ServiceError {
     match e {
-        VersionError::NotFound { .. } => ApiError::new(ErrorKind::NotFound, e.to_string()),
+        VersionError::NotFound { .. } => ServiceError::UnknownVersion(e.to_string()),
         VersionError::Active { .. } | VersionError::Legacy { .. } => {
-            ApiError::new(ErrorKind::Conflict, e.to_string())
+            ServiceError::Conflict(e.to_string())
         }
-        VersionError::Invalid(m) => ApiError::invalid(m),
-        VersionError::Store(StoreError::Exists { ref path }) => ApiError::new(
-            ErrorKind::Conflict,
-            format!(
-                "{} already exists in the models folder (written outside this service?); the \
+        VersionError::Invalid(m) => ServiceError::invalid(m),
+        VersionError::Store(StoreError::Exists { ref path }) => ServiceError::Conflict(format!(
+            "{} already exists in the models folder (written outside this service?); the \
                  version was not written: retry, or remove the entry",
-                path.display()
-            ),
-        ),
+            path.display()
+        )),
         VersionError::Io { ref source, .. }
         | VersionError::Store(StoreError::Io { ref source, .. })
             if matches!(
@@ -186,17 +177,14 @@ pub fn version_error(e: VersionError) -> ApiError {
             ) =>
         {
             tracing::error!(error = %e, "models folder not writable");
-            ApiError::new(
-                ErrorKind::Conflict,
-                format!(
-                    "the models folder is not writable by this server ({e}); an operator must \
-                     mount it read-write for the service's user"
-                ),
-            )
+            ServiceError::Conflict(format!(
+                "the models folder is not writable by this server ({e}); an operator must mount \
+                 it read-write for the service's user"
+            ))
         }
         VersionError::Io { .. } | VersionError::Store(_) => {
             tracing::error!(error = %e, "models folder");
-            ApiError::internal(format!("models folder: {e}"))
+            ServiceError::internal(format!("models folder: {e}"))
         }
     }
 }
@@ -206,6 +194,7 @@ mod tests {
     use super::super::testing::{add, temp_root};
     use super::super::{load_models, pointer::read_pointer};
     use super::*;
+    use crate::error::ErrorKind;
     use std::time::Duration;
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -258,9 +247,10 @@ mod tests {
             Some(root.clone()),
         ));
         let e = reg.activate("shared", "1").await.unwrap_err();
-        assert_eq!(e.kind, ErrorKind::Conflict);
+        assert_eq!(e.kind(), ErrorKind::Conflict);
         assert!(
-            e.message.contains("already served from the folder \"a\""),
+            e.to_string()
+                .contains("already served from the folder \"a\""),
             "{e}"
         );
         assert_eq!(read_pointer(&root.join("shared")).unwrap(), None);
@@ -278,22 +268,18 @@ mod tests {
                 path: "/models/default/versions/2".into(),
                 source: kind.into(),
             });
-            assert_eq!(e.kind, ErrorKind::Conflict);
-            assert!(e.message.contains("not writable"), "{}", e.message);
+            assert_eq!(e.kind(), ErrorKind::Conflict);
+            assert!(e.to_string().contains("not writable"), "{}", e);
         }
         let e = version_error(VersionError::Io {
             path: "/models".into(),
             source: std::io::ErrorKind::StorageFull.into(),
         });
-        assert_ne!(e.kind, ErrorKind::Conflict, "{}", e.message);
+        assert_ne!(e.kind(), ErrorKind::Conflict, "{}", e);
         let e = version_error(VersionError::Store(StoreError::Exists {
             path: "/models/m/versions/2".into(),
         }));
-        assert_eq!(e.kind, ErrorKind::Conflict);
-        assert!(
-            e.message.contains("versions/2 already exists"),
-            "{}",
-            e.message
-        );
+        assert_eq!(e.kind(), ErrorKind::Conflict);
+        assert!(e.to_string().contains("versions/2 already exists"), "{}", e);
     }
 }

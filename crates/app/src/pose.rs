@@ -4,8 +4,8 @@
 
 use std::time::Instant;
 
-use super::errors::ApiError;
-use super::registry::ServedModel;
+use crate::error::ServiceError;
+use crate::registry::ServedModel;
 
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
@@ -36,7 +36,7 @@ fn given(s: Option<&str>) -> Option<&str> {
 }
 
 /// Estimates one face with `model`. Every failure is a client error with a message.
-pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePose, ApiError> {
+pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePose, ServiceError> {
     let scheme = given(face.scheme).unwrap_or_else(|| model.scheme());
     // The scheme first: the landmark count is checked against it.
     model.model.subset(scheme)?;
@@ -44,8 +44,8 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         Some(m) => m.parse()?,
         None => Method::Auto,
     };
-    if method == Method::FitShape && model.model.morph.is_none() {
-        return Err(ApiError::invalid(format!(
+    if !method.is_supported_by(&model.model) {
+        return Err(ServiceError::invalid(format!(
             "method fit-shape needs a model with a shape basis; model {:?} has none",
             model.name
         )));
@@ -68,7 +68,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
     let rotation = estimate.rotation;
     let record = PoseRecord::from(estimate);
     if !record.is_finite() {
-        return Err(ApiError::invalid(
+        return Err(ServiceError::invalid(
             "could not estimate a pose from these landmarks: the result is not finite; \
              check that they are the pixel coordinates of one face",
         ));
@@ -104,31 +104,3 @@ pub fn for_each_face<T, R>(
 /// The deadline passed during a batch.
 #[derive(Debug, Clone, Copy)]
 pub struct DeadlinePassed;
-
-/// Runs fallible blocking work (file I/O, training, validation of an upload) on the blocking
-/// pool; a panic there is an internal error naming `what`, not a crash.
-pub async fn on_blocking_pool<T, F>(what: &str, f: F) -> Result<T, ApiError>
-where
-    F: FnOnce() -> Result<T, ApiError> + Send + 'static,
-    T: Send + 'static,
-{
-    tokio::task::spawn_blocking(f)
-        .await
-        .map_err(|e| ApiError::internal(format!("{what} failed: {e}")))?
-}
-
-/// Runs `f` inline when `inline`, else on the blocking pool. Estimation is microseconds per
-/// face: a thread hop only pays off for batches.
-pub async fn run_maybe_blocking<T, F>(inline: bool, f: F) -> Result<T, ApiError>
-where
-    F: FnOnce() -> T + Send + 'static,
-    T: Send + 'static,
-{
-    if inline {
-        Ok(f())
-    } else {
-        tokio::task::spawn_blocking(f)
-            .await
-            .map_err(|e| ApiError::internal(format!("estimation task failed: {e}")))
-    }
-}

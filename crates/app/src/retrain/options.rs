@@ -2,7 +2,7 @@
 //! parameters, served sub-schemes, shape basis size, seed, and the validation thresholds;
 //! checked against the scheme with messages naming the option, defaults filled in.
 
-use super::super::errors::ApiError;
+use crate::error::ServiceError;
 use facepose_core::model::train::subset_of;
 use facepose_core::model::validate::ValidationOptions;
 use facepose_core::model::{RegressionParams, TrainOptions};
@@ -57,18 +57,18 @@ pub struct UploadOptions {
     pub validation: ValidationOptions,
 }
 
-fn range(what: &str, r: [f64; 3], limit: f64) -> Result<AngleRange, ApiError> {
+fn range(what: &str, r: [f64; 3], limit: f64) -> Result<AngleRange, ServiceError> {
     let [min, max, step] = r;
     if !(min >= -limit && max <= limit) {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "options.grid {what}: [{min}, {max}] must lie within ±{limit}°"
         )));
     }
     AngleRange::new(min, max, step)
-        .map_err(|e| ApiError::invalid(format!("options.grid {what}: {e}")))
+        .map_err(|e| ServiceError::invalid(format!("options.grid {what}: {e}")))
 }
 
-fn grid(what: &str, g: &RawGrid) -> Result<PoseGrid, ApiError> {
+fn grid(what: &str, g: &RawGrid) -> Result<PoseGrid, ServiceError> {
     Ok(PoseGrid {
         yaw: range(&format!("{what} yaw"), g.yaw, 90.0)?,
         pitch: range(&format!("{what} pitch"), g.pitch, 90.0)?,
@@ -86,11 +86,11 @@ fn views(g: &PoseGrid) -> f64 {
 }
 
 /// Checks the options against the scheme and fills in the defaults.
-pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions, ApiError> {
+pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions, ServiceError> {
     if let Some((_, bins)) = &raw.custom_grid
         && bins.len() > MAX_BINS
     {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "options.grid bins: {} bins; the limit is {MAX_BINS}",
             bins.len()
         )));
@@ -108,7 +108,7 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
         (None, None | Some("") | Some("wide")) => RegressionParams::wide(),
         (None, Some("paper")) => RegressionParams::paper(),
         (None, Some(other)) => {
-            return Err(ApiError::invalid(format!(
+            return Err(ServiceError::invalid(format!(
                 "options.grid {other:?}: use \"wide\", \"paper\" or a grid object \
                  {{\"coarse\": {{\"yaw\": [min, max, step], \"pitch\": [...]}}, \"bins\": [...]}}"
             )));
@@ -116,18 +116,18 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
     };
     let total: f64 = regression.grids().map(views).sum();
     if total > MAX_GRID_VIEWS as f64 {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "options.grid: {total} training views; the limit is {MAX_GRID_VIEWS} (use larger steps)"
         )));
     }
     if let Some(eps) = &raw.epsilons {
         if eps.is_empty() || eps.len() > 20 {
-            return Err(ApiError::invalid(
+            return Err(ServiceError::invalid(
                 "options.epsilons: give 1 to 20 candidate ridge parameters",
             ));
         }
         if let Some(e) = eps.iter().find(|e| !(e.is_finite() && **e > 0.0)) {
-            return Err(ApiError::invalid(format!(
+            return Err(ServiceError::invalid(format!(
                 "options.epsilons: {e} is not a positive number"
             )));
         }
@@ -141,28 +141,29 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
     };
     for (k, name) in subsets.iter().enumerate() {
         if *name == scheme.name || subsets[..k].contains(name) {
-            return Err(ApiError::invalid(format!(
+            return Err(ServiceError::invalid(format!(
                 "options.subsets: {name:?} is listed twice or is the model's own scheme"
             )));
         }
-        subset_of(scheme, name).map_err(|e| ApiError::invalid(format!("options.subsets: {e}")))?;
+        subset_of(scheme, name)
+            .map_err(|e| ServiceError::invalid(format!("options.subsets: {e}")))?;
     }
     let components = raw.components.unwrap_or(DEFAULT_COMPONENTS);
     if components > 200 {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "options.components: {components}; at most 200"
         )));
     }
     let min_shapes = raw.min_shapes.unwrap_or(DEFAULT_MIN_SHAPES);
     if min_shapes < 3 {
-        return Err(ApiError::invalid(format!(
+        return Err(ServiceError::invalid(format!(
             "options.min_shapes: {min_shapes}; at least 3"
         )));
     }
     let mut validation = ValidationOptions::default();
     if let Some(k) = raw.outlier_k {
         if !(k.is_finite() && k > 0.0) {
-            return Err(ApiError::invalid(format!(
+            return Err(ServiceError::invalid(format!(
                 "options.outlier_k: {k} is not a positive number"
             )));
         }
@@ -184,7 +185,7 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
 mod tests {
     use super::*;
 
-    fn opts(raw: RawOptions) -> Result<UploadOptions, ApiError> {
+    fn opts(raw: RawOptions) -> Result<UploadOptions, ServiceError> {
         check_options(&raw, &facepose_core::shape::ibug68())
     }
 
@@ -303,7 +304,7 @@ mod tests {
             ),
         ] {
             let e = opts(raw).unwrap_err();
-            assert!(e.message.contains(want), "{want}: {e}");
+            assert!(e.to_string().contains(want), "{want}: {e}");
         }
     }
 }

@@ -1,0 +1,306 @@
+//! What can go wrong with a request, as a type the callers match on: [`ServiceError`]. Each
+//! variant carries what a message needs; [`ServiceError::kind`] is its class, which the
+//! transports map to an HTTP status and a gRPC code. `Display` is the transport-neutral
+//! message; where a message would point the client at a route or an RPC, the transports say it
+//! in their own words (`facepose_service::http::error`, `facepose_service::grpc::error`).
+//!
+//! | kind | HTTP | gRPC |
+//! |---|---|---|
+//! | `invalid_argument` | 422 | INVALID_ARGUMENT |
+//! | `unauthenticated` | 401 | UNAUTHENTICATED |
+//! | `forbidden` | 403 | PERMISSION_DENIED |
+//! | `not_found` | 404 | NOT_FOUND |
+//! | `conflict` | 409 | FAILED_PRECONDITION |
+//! | `payload_too_large` | 413 | RESOURCE_EXHAUSTED |
+//! | `overloaded` | 429 | UNAVAILABLE |
+//! | `timeout` | 503 | DEADLINE_EXCEEDED |
+//! | `unavailable` | 503 | UNAVAILABLE |
+//! | `internal` | 500 | INTERNAL |
+
+use std::time::Duration;
+
+use facepose_core::model::validate::ValidationReport;
+
+use crate::jobs::{JobStage, JobState};
+
+/// The class of an error: fixes the status on both transports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ErrorKind {
+    /// The request is well-formed but its values are unusable: landmarks, scheme, method,
+    /// camera, an upload's fields.
+    InvalidArgument,
+    /// An admin call without a valid bearer token.
+    Unauthenticated,
+    /// An admin call on a server with no admin token configured (admin calls disabled).
+    Forbidden,
+    /// No such model, version or job.
+    NotFound,
+    /// The registry's state forbids it: deleting the active version, retraining without a
+    /// models folder, activating a version that does not load, cancelling a job that ended.
+    Conflict,
+    /// A body, message or batch over the configured limit.
+    PayloadTooLarge,
+    /// Too many requests in progress: retry with backoff.
+    Overloaded,
+    /// The request took longer than the configured limit.
+    Timeout,
+    /// Not ready or shutting down: retry, possibly on another replica.
+    Unavailable,
+    /// A bug or a broken volume: the message is logged with the request id.
+    Internal,
+}
+
+impl ErrorKind {
+    /// The snake_case name, in JSON bodies and metrics labels.
+    pub fn name(self) -> &'static str {
+        match self {
+            ErrorKind::InvalidArgument => "invalid_argument",
+            ErrorKind::Unauthenticated => "unauthenticated",
+            ErrorKind::Forbidden => "forbidden",
+            ErrorKind::NotFound => "not_found",
+            ErrorKind::Conflict => "conflict",
+            ErrorKind::PayloadTooLarge => "payload_too_large",
+            ErrorKind::Overloaded => "overloaded",
+            ErrorKind::Timeout => "timeout",
+            ErrorKind::Unavailable => "unavailable",
+            ErrorKind::Internal => "internal",
+        }
+    }
+
+    /// Whether a client may simply retry (with backoff, possibly elsewhere).
+    pub fn is_retryable(self) -> bool {
+        matches!(
+            self,
+            ErrorKind::Overloaded | ErrorKind::Unavailable | ErrorKind::Timeout
+        )
+    }
+}
+
+/// Why an admin call was not authenticated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unauthenticated {
+    /// No credentials at all.
+    Missing,
+    /// Credentials that are not `Bearer <token>`.
+    NotBearer,
+    /// A bearer token that is not the configured one.
+    WrongToken,
+}
+
+/// Why a job cannot be cancelled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotCancellable {
+    /// It has ended (in this state).
+    Ended(JobState),
+    /// It is writing or activating its version.
+    Late(JobStage),
+}
+
+/// A request's error.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ServiceError {
+    /// The request's values are unusable; the message names the value and what to fix.
+    #[error("{0}")]
+    Invalid(String),
+    /// An upload with fewer usable shapes than it needs; the report gives the reason of every
+    /// drop.
+    #[error("{message}")]
+    TooFewShapes {
+        message: String,
+        report: Box<ValidationReport>,
+    },
+    #[error("unknown model {name:?}; loaded models: {}", loaded.join(", "))]
+    UnknownModel { name: String, loaded: Vec<String> },
+    /// No such model folder entry.
+    #[error(
+        "no model {name:?} in the models folder{}",
+        if *has_folder { "" } else { " (the server has no models folder)" }
+    )]
+    NotInFolder { name: String, has_folder: bool },
+    /// No such version; the message lists the versions there are.
+    #[error("{0}")]
+    UnknownVersion(String),
+    #[error(
+        "unknown job {id:?}: no replica sharing this models folder has it (jobs are kept for an \
+         hour after they end)"
+    )]
+    UnknownJob { id: String },
+    #[error("{}", not_cancellable(id, why))]
+    NotCancellable {
+        id: String,
+        /// The job's model, whose versions say what a late job wrote.
+        model: String,
+        why: NotCancellable,
+    },
+    /// The models folder's state forbids the change; the message says what to do.
+    #[error("{0}")]
+    Conflict(String),
+    #[error(
+        "this server has no models folder, so it cannot store versions: start it with --models \
+         DIR (a folder shared by every replica)"
+    )]
+    NoModelsFolder,
+    #[error("{faces} faces in one request; the limit is {limit} (--max-batch): split the batch")]
+    BatchTooLarge { faces: usize, limit: usize },
+    /// A request body, message or upload over its limit.
+    #[error("{}", too_large(what, *size, *limit, flag, hint))]
+    TooLarge {
+        /// What is too large ("request body", "the upload").
+        what: &'static str,
+        /// Its size when known.
+        size: Option<u64>,
+        limit: usize,
+        /// The flag that sets the limit.
+        flag: &'static str,
+        /// What to do.
+        hint: &'static str,
+    },
+    #[error("server busy: {limit} requests already in progress; retry with backoff")]
+    Overloaded { limit: usize },
+    #[error("server busy: {limit} streams already open (--max-streams); retry with backoff")]
+    StreamsBusy { limit: usize },
+    #[error(
+        "{} retraining jobs are queued or running (--max-queued-jobs {max_queued}); retry later",
+        max_queued.saturating_add(1)
+    )]
+    QueueFull { max_queued: usize },
+    #[error("request took longer than {limit:?} (--request-timeout); send smaller batches")]
+    Timeout { limit: Duration },
+    #[error(
+        "the upload took longer than {limit:?} to arrive and be checked (--upload-timeout); send \
+         fewer shapes per upload or from closer to the server"
+    )]
+    UploadTimeout { limit: Duration },
+    /// A change of the models folder that outlived the request; it completes in the background.
+    #[error(
+        "the change took longer than {limit:?} (--request-timeout) and goes on in the background"
+    )]
+    ChangeTimedOut { limit: Duration },
+    #[error("server shutting down; retry, possibly on another replica")]
+    ShuttingDown,
+    #[error(
+        "admin routes are disabled on this server: start it with FACEPOSE_ADMIN_TOKEN or \
+         --admin-token-file to enable retraining, activation and deletion"
+    )]
+    AdminDisabled,
+    #[error("{}", match .0 {
+        Unauthenticated::Missing => "missing admin token: send Authorization: Bearer <token>",
+        Unauthenticated::NotBearer => "the Authorization header must be \"Bearer <token>\"",
+        Unauthenticated::WrongToken => "invalid admin token",
+    })]
+    Unauthenticated(Unauthenticated),
+    #[error("{0}")]
+    Internal(String),
+}
+
+fn not_cancellable(id: &str, why: &NotCancellable) -> String {
+    match why {
+        NotCancellable::Ended(s) => format!(
+            "job {id} has already {}; there is nothing to cancel",
+            match s {
+                JobState::Cancelled => "been cancelled",
+                other => other.name(),
+            }
+        ),
+        NotCancellable::Late(stage) => format!(
+            "job {id} is {} its version: too late to cancel; once it ends, activate another \
+             version or delete this one",
+            stage.name()
+        ),
+    }
+}
+
+fn too_large(what: &str, size: Option<u64>, limit: usize, flag: &str, hint: &str) -> String {
+    match size {
+        Some(n) => {
+            format!("{what} of {n} bytes is over the limit of {limit} bytes ({flag}); {hint}")
+        }
+        None => format!("{what} is over the limit of {limit} bytes ({flag}); {hint}"),
+    }
+}
+
+impl ServiceError {
+    /// An unusable value: 422 / INVALID_ARGUMENT with `message`.
+    pub fn invalid(message: impl Into<String>) -> Self {
+        ServiceError::Invalid(message.into())
+    }
+
+    /// A bug or a broken volume: 500 / INTERNAL.
+    pub fn internal(message: impl Into<String>) -> Self {
+        ServiceError::Internal(message.into())
+    }
+
+    /// The class of the error.
+    pub fn kind(&self) -> ErrorKind {
+        use ServiceError as E;
+        match self {
+            E::Invalid(_) | E::TooFewShapes { .. } => ErrorKind::InvalidArgument,
+            E::UnknownModel { .. }
+            | E::NotInFolder { .. }
+            | E::UnknownVersion(_)
+            | E::UnknownJob { .. } => ErrorKind::NotFound,
+            E::NotCancellable { .. } | E::Conflict(_) | E::NoModelsFolder => ErrorKind::Conflict,
+            E::BatchTooLarge { .. } | E::TooLarge { .. } => ErrorKind::PayloadTooLarge,
+            E::Overloaded { .. } | E::QueueFull { .. } => ErrorKind::Overloaded,
+            E::Timeout { .. } | E::UploadTimeout { .. } | E::ChangeTimedOut { .. } => {
+                ErrorKind::Timeout
+            }
+            E::ShuttingDown | E::StreamsBusy { .. } => ErrorKind::Unavailable,
+            E::AdminDisabled => ErrorKind::Forbidden,
+            E::Unauthenticated(_) => ErrorKind::Unauthenticated,
+            E::Internal(_) => ErrorKind::Internal,
+        }
+    }
+}
+
+/// Every core error is caused by the request's values (the core never fails on its own
+/// state): 422 / INVALID_ARGUMENT, with the core's message.
+impl From<facepose_core::Error> for ServiceError {
+    fn from(e: facepose_core::Error) -> Self {
+        use facepose_core::Error as E;
+        ServiceError::Invalid(match &e {
+            E::Numerical(_) => format!("could not estimate a pose from these landmarks: {e}"),
+            E::NonFinite { .. }
+            | E::TooFewPoints { .. }
+            | E::PointCount { .. }
+            | E::Degenerate(_)
+            | E::InvalidParameter { .. }
+            | E::InvalidScheme { .. } => e.to_string(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn core_errors_are_invalid_arguments_with_the_core_message() {
+        let e: ServiceError =
+            facepose_core::Error::Degenerate("all points are equal".into()).into();
+        assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+        assert!(e.to_string().contains("all points are equal"), "{e}");
+    }
+
+    #[test]
+    fn messages_name_the_limit_and_what_to_do() {
+        let e = ServiceError::BatchTooLarge { faces: 5, limit: 2 };
+        assert_eq!(e.kind(), ErrorKind::PayloadTooLarge);
+        assert!(e.to_string().contains("limit is 2"), "{e}");
+        let e = ServiceError::QueueFull { max_queued: 1 };
+        assert_eq!(e.kind(), ErrorKind::Overloaded);
+        assert!(e.to_string().contains("--max-queued-jobs 1"), "{e}");
+        assert!(ErrorKind::Overloaded.is_retryable());
+        assert!(!ErrorKind::Conflict.is_retryable());
+        let late = ServiceError::NotCancellable {
+            id: "j".into(),
+            model: "m".into(),
+            why: NotCancellable::Late(JobStage::Writing),
+        };
+        assert_eq!(late.kind(), ErrorKind::Conflict);
+        assert!(
+            late.to_string().contains("is writing its version"),
+            "{late}"
+        );
+    }
+}

@@ -1,0 +1,127 @@
+//! The models, their versions and the folder's catalog as the API shows them, whatever the
+//! transport: plain data the HTTP and gRPC layers convert into their wire types.
+
+use facepose_core::model::bundle::Provenance;
+use facepose_core::pose::Method;
+
+use crate::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
+
+/// A scheme a model serves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeView {
+    pub name: String,
+    pub points: usize,
+}
+
+/// A served model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelView {
+    pub name: String,
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    /// The model's own scheme (the default scheme of requests).
+    pub scheme: String,
+    /// Every scheme it serves, its own first.
+    pub schemes: Vec<SchemeView>,
+    /// The methods it supports.
+    pub methods: Vec<Method>,
+    /// `sha256:<hex>` of the bundle.
+    pub checksum: String,
+    /// The bundle file, or `embedded`.
+    pub source: String,
+    /// Whether requests that name no model use it.
+    pub default: bool,
+    /// Its versions in the models folder (empty without one).
+    pub versions: Vec<VersionView>,
+}
+
+/// A served model with its provenance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelDetail {
+    pub model: ModelView,
+    pub provenance: Provenance,
+}
+
+/// Every served model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelsView {
+    pub default_model: String,
+    pub models: Vec<ModelView>,
+}
+
+/// One version of a model in the models folder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VersionView {
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    pub checksum: String,
+    /// The model's own scheme in that version.
+    pub scheme: String,
+    /// The bundle file, or `embedded`.
+    pub source: String,
+    /// The folder's active version: what every replica serves once it has followed the folder.
+    pub active: bool,
+    /// The version this replica serves.
+    pub served: bool,
+    /// Deployed with the folder (`DIR/<name>/model.json`) or built in: not deletable through
+    /// the API.
+    pub fixed: bool,
+}
+
+/// A model folder entry's versions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VersionsView {
+    pub name: String,
+    /// The folder's active version; `None` if none was ever activated.
+    pub active: Option<String>,
+    pub versions: Vec<VersionView>,
+}
+
+/// The versions of a models folder entry, the active one and the one `served` marked.
+pub fn versions_of(
+    stored: Option<&StoredVersions>,
+    served: Option<&ServedModel>,
+) -> Vec<VersionView> {
+    let Some(stored) = stored else {
+        return vec![];
+    };
+    stored
+        .versions
+        .iter()
+        .map(|v| VersionView {
+            version: v.version.clone(),
+            created: v.created.clone(),
+            checksum: v.checksum.clone(),
+            scheme: v.scheme.clone(),
+            source: v.source.clone(),
+            active: stored.active.as_deref() == Some(v.version.as_str()),
+            served: served.is_some_and(|m| m.version == v.version),
+            fixed: v.fixed,
+        })
+        .collect()
+}
+
+/// A served model, with its versions from the catalog.
+pub fn model_view(m: &ServedModel, set: &ModelSet, catalog: &Catalog) -> ModelView {
+    let stored = m.store.as_ref().and_then(|s| catalog.models.get(s));
+    ModelView {
+        name: m.name.clone(),
+        version: m.version.clone(),
+        created: m.created.clone(),
+        scheme: m.scheme().to_string(),
+        schemes: m
+            .schemes()
+            .map(|(name, points)| SchemeView {
+                name: name.to_string(),
+                points,
+            })
+            .collect(),
+        methods: m.methods(),
+        checksum: m.checksum.clone(),
+        source: m.source.to_string(),
+        default: m.name == set.default_name(),
+        versions: versions_of(stored, Some(m)),
+    }
+}

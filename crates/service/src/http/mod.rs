@@ -1,0 +1,186 @@
+//! The HTTP JSON API. Its routes and its OpenAPI document come from one list ([`api`]): each
+//! handler's `#[utoipa::path]` gives both its route and its part of the document, so the two
+//! cannot disagree. The handlers convert between the JSON of [`wire`] and the application
+//! (`facepose_app::App`), and [`error`] maps its errors to statuses in HTTP's words.
+//!
+//! - [`pose`]: `POST /v1/pose`, `POST /v1/pose:batch`.
+//! - [`models`]: the served models, versions, activation, deletion.
+//! - [`retrain`]: `POST /v1/models` (an upload becomes a job), the jobs.
+//! - [`ops`]: `/healthz`, `/readyz`, `/metrics`, `/openapi.json`.
+//! - [`body`], [`request_json`]: reading request bodies; [`middleware`]: limits, request ids,
+//!   metrics and logs.
+
+pub mod body;
+pub mod error;
+pub mod middleware;
+pub mod models;
+pub mod ops;
+pub mod pose;
+pub mod request_json;
+pub mod retrain;
+pub mod wire;
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::body::Body;
+use axum::extract::Request;
+use axum::http::{Method as HttpMethod, Uri};
+use axum::response::{IntoResponse, Response};
+use facepose_app::App;
+use utoipa::OpenApi;
+use utoipa_axum::router::{OpenApiRouter, UtoipaMethodRouter, UtoipaMethodRouterExt};
+use utoipa_axum::routes;
+
+use error::{ErrorBody, ErrorCode, ErrorObject, HttpError};
+use middleware::{TimeLimit, is_grpc};
+use models::BearerAuth;
+
+/// The document's parts that no route gives: its description, the error schemas, the admin
+/// token's security scheme and the tags.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "facepose",
+        description = "Head pose (yaw, pitch, roll in degrees, and the rotation matrix) from 2D \
+            facial landmarks. Landmarks are image pixels (x right, y down). Angles follow the \
+            300W-LP / AFLW2000-3D Pose_Para convention: pitch > 0 chin up, yaw > 0 the nose \
+            turns towards image-left, roll > 0 clockwise on screen, R = Rx(pitch) Ry(yaw) \
+            Rz(roll), given row-major. The same service answers gRPC (facepose.v1.PoseService) \
+            on the same port."
+    ),
+    components(schemas(ErrorBody, ErrorObject, ErrorCode)),
+    modifiers(&BearerAuth),
+    tags(
+        (name = "pose", description = "Pose estimation"),
+        (name = "models", description = "Loaded model bundles"),
+        (name = "registry", description = "Retraining, model versions, activation (admin routes need a bearer token)"),
+        (name = "operations", description = "Health, readiness, metrics")
+    )
+)]
+struct ApiDoc;
+
+/// Every route with its part of the OpenAPI document: the `/v1` API under the concurrency
+/// limit and its time limit class, the operational routes without limits.
+pub fn api(app: &Arc<App>) -> OpenApiRouter<Arc<App>> {
+    let v1 = |limit: TimeLimit, r: UtoipaMethodRouter<Arc<App>>| {
+        r.layer(axum::middleware::from_fn_with_state(
+            (app.clone(), limit),
+            middleware::limits,
+        ))
+    };
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .routes(v1(TimeLimit::Request, routes!(pose::pose)))
+        .routes(v1(TimeLimit::Request, routes!(pose::pose_batch)))
+        .routes(v1(TimeLimit::Request, routes!(models::list_models)))
+        .routes(v1(TimeLimit::Upload, routes!(retrain::retrain)))
+        .routes(v1(TimeLimit::Request, routes!(models::get_model)))
+        .routes(v1(
+            TimeLimit::Request,
+            routes!(retrain::get_job, retrain::job_action),
+        ))
+        .routes(v1(TimeLimit::Request, routes!(models::list_versions)))
+        .routes(v1(
+            TimeLimit::Change,
+            routes!(models::version_action, models::delete_version),
+        ))
+        .routes(routes!(ops::healthz))
+        .routes(routes!(ops::readyz))
+        .routes(routes!(ops::metrics_text))
+        .routes(routes!(ops::openapi))
+}
+
+/// The HTTP router, with its state, and the OpenAPI document it serves.
+pub fn router(app: &Arc<App>) -> (Router, utoipa::openapi::OpenApi) {
+    let (router, doc) = api(app).split_for_parts();
+    let text: Arc<str> = doc
+        .to_json()
+        .unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+        .into();
+    let router = router
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(axum::Extension(ops::OpenApiText(text)))
+        .with_state(app.clone());
+    (router, doc)
+}
+
+async fn method_not_allowed(method: HttpMethod, uri: Uri) -> HttpError {
+    HttpError::MethodNotAllowed(format!(
+        "method {method} is not allowed on {}; see /openapi.json",
+        uri.path()
+    ))
+}
+
+/// The fallback of the whole router: gRPC UNIMPLEMENTED for gRPC requests, 404 otherwise.
+pub async fn fallback(req: Request) -> Response {
+    if is_grpc(req.headers()) {
+        let status = tonic::Status::unimplemented(format!(
+            "unknown gRPC method {}; see server reflection",
+            req.uri().path()
+        ));
+        return status.into_http::<Body>().into_response();
+    }
+    HttpError::NotFound(format!(
+        "no route {} {}; see /openapi.json",
+        req.method(),
+        req.uri().path()
+    ))
+    .into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_openapi_document_lists_every_route() {
+        let settings = facepose_app::Settings {
+            models: None,
+            limits: facepose_app::Limits {
+                max_batch: 10,
+                max_body: 1 << 20,
+                request_timeout: std::time::Duration::from_secs(5),
+                max_concurrency: 4,
+                max_streams: 4,
+                max_upload: 1 << 20,
+                upload_timeout: std::time::Duration::from_secs(5),
+            },
+            admin_token: facepose_app::auth::AdminToken::disabled(),
+            max_queued_jobs: 1,
+            registry_poll: std::time::Duration::from_secs(60),
+            replica: "test".into(),
+        };
+        let runtime = tokio::runtime::Runtime::new().unwrap();
+        let _enter = runtime.enter();
+        let app = App::with_models(
+            settings,
+            facepose_app::registry::load_models(None).unwrap(),
+            tracing::Span::none(),
+        );
+        let (_, doc) = router(&app);
+        let doc: serde_json::Value = serde_json::from_str(&doc.to_json().unwrap()).unwrap();
+        let paths = doc["paths"].as_object().unwrap();
+        let mut listed: Vec<&str> = paths.keys().map(String::as_str).collect();
+        listed.sort();
+        assert_eq!(
+            listed,
+            [
+                "/healthz",
+                "/metrics",
+                "/openapi.json",
+                "/readyz",
+                "/v1/models",
+                "/v1/models/jobs/{id}",
+                "/v1/models/{name}",
+                "/v1/models/{name}/versions",
+                "/v1/models/{name}/versions/{version}",
+                "/v1/pose",
+                "/v1/pose:batch",
+            ]
+        );
+        assert_eq!(paths["/v1/models"].as_object().unwrap().len(), 2);
+        assert!(doc["components"]["schemas"]["PoseRequest"].is_object());
+        assert!(doc["components"]["schemas"]["ErrorBody"].is_object());
+        assert!(doc["components"]["securitySchemes"]["admin_token"].is_object());
+    }
+}

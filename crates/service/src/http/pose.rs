@@ -1,0 +1,186 @@
+//! The pose routes: `POST /v1/pose` (one face) and `POST /v1/pose:batch` (many, each with its
+//! own outcome). The body is read in one pass when it has the usual shape
+//! ([`super::request_json`]), else by serde with its precise errors.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::Extension;
+use axum::body::Bytes;
+use axum::extract::{Request, State};
+use axum::response::Response;
+use facepose_app::blocking::run_maybe_blocking;
+use facepose_app::error::ServiceError;
+use facepose_app::metrics::{FaceTally, Metrics, Transport};
+use facepose_app::pose::{FaceSpec, estimate_face, for_each_face};
+use facepose_app::registry::ModelSet;
+use facepose_app::{App, Limits};
+
+use super::body::{json_bytes, parse_json, read_body, require_json, to_json};
+use super::error::{ErrorBody, HttpError};
+use super::middleware::Deadline;
+use super::request_json::{read_batch_request, read_pose_request};
+use super::wire::{
+    BatchError, BatchPose, BatchRequest, BatchResponse, BatchResult, PoseRequest, PoseResponse,
+};
+
+/// Bodies up to this size (about six 68-point faces) are parsed and estimated inline; larger
+/// batches go to the blocking pool.
+const INLINE_BODY: usize = 16 * 1024;
+
+/// Parses a `POST /v1/pose` body: in one pass when it has the usual shape
+/// ([`read_pose_request`]), else with serde and its precise errors ([`parse_json`]).
+pub fn parse_pose_request(bytes: &[u8]) -> Result<PoseRequest, HttpError> {
+    read_pose_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+}
+
+/// [`parse_pose_request`] for `POST /v1/pose:batch`.
+pub fn parse_batch_request(bytes: &[u8]) -> Result<BatchRequest, HttpError> {
+    read_batch_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+}
+
+/// Estimate the head pose of one face.
+#[utoipa::path(
+    post, path = "/v1/pose", tag = "pose",
+    request_body = PoseRequest,
+    responses(
+        (status = 200, description = "The pose", body = PoseResponse),
+        (status = 400, description = "Malformed JSON", body = ErrorBody),
+        (status = 404, description = "Unknown model", body = ErrorBody),
+        (status = 413, description = "Body over --max-body", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Unusable values: landmark count, NaN/inf, too few or degenerate points, unknown scheme or method, bad camera", body = ErrorBody),
+        (status = 429, description = "Overloaded: retry with backoff", body = ErrorBody),
+        (status = 503, description = "Timed out", body = ErrorBody),
+    )
+)]
+pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response, HttpError> {
+    // The request whole rather than a `HeaderMap` extractor, which would copy the headers.
+    let (parts, body) = req.into_parts();
+    require_json(&parts.headers)?;
+    let bytes = read_body(&parts.headers, body, app.limits.max_body).await?;
+    let req = parse_pose_request(&bytes)?;
+    let models = app.models();
+    let model = models.get(req.model.as_deref())?;
+    let result = estimate_face(
+        model,
+        &FaceSpec {
+            landmarks: &req.landmarks.0,
+            scheme: req.scheme.as_deref(),
+            method: req.method.as_deref(),
+            camera: req.camera.map(Into::into),
+            style: req.landmark_style.as_deref(),
+        },
+    );
+    let mut tally = FaceTally::default();
+    match &result {
+        Ok(p) => tally.ok(p.record.method),
+        Err(e) => tally.err(e.kind()),
+    }
+    app.metrics.faces(&tally, Transport::Http);
+    let p = result?;
+    Ok(json_bytes(to_json(&PoseResponse {
+        pose: p.record,
+        scheme: p.scheme,
+        model: model.name.clone(),
+        model_version: model.version.clone(),
+        id: req.id,
+    })?))
+}
+
+/// Estimate many faces; each gets its pose or its own error.
+#[utoipa::path(
+    post, path = "/v1/pose:batch", tag = "pose",
+    request_body = BatchRequest,
+    responses(
+        (status = 200, description = "One result per face, in order", body = BatchResponse),
+        (status = 400, description = "Malformed JSON", body = ErrorBody),
+        (status = 404, description = "Unknown model", body = ErrorBody),
+        (status = 413, description = "Body over --max-body or more faces than --max-batch", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Unusable request structure", body = ErrorBody),
+        (status = 429, description = "Overloaded: retry with backoff", body = ErrorBody),
+        (status = 503, description = "Timed out", body = ErrorBody),
+    )
+)]
+pub async fn pose_batch(
+    State(app): State<Arc<App>>,
+    Extension(deadline): Extension<Deadline>,
+    req: Request,
+) -> Result<Response, HttpError> {
+    let (parts, body) = req.into_parts();
+    require_json(&parts.headers)?;
+    let bytes = read_body(&parts.headers, body, app.limits.max_body).await?;
+    let models = app.models();
+    let limits = app.limits;
+    let inline = bytes.len() <= INLINE_BODY;
+    let metrics = app.metrics.clone();
+    let body = run_maybe_blocking(inline, move || {
+        answer_batch(bytes, &models, limits, Some(deadline.0), &metrics)
+    })
+    .await??;
+    Ok(json_bytes(body))
+}
+
+/// The answer to a `POST /v1/pose:batch` body: parse, estimate each face against `models`
+/// (stopping at `deadline`), serialize. Pure but for the metrics; the handler runs it off the
+/// async workers, and `loadgen ceiling` (crates/service/examples) runs it with no network.
+pub fn answer_batch(
+    bytes: Bytes,
+    models: &ModelSet,
+    limits: Limits,
+    deadline: Option<Instant>,
+    metrics: &Metrics,
+) -> Result<Vec<u8>, HttpError> {
+    let req = parse_batch_request(&bytes)?;
+    drop(bytes);
+    if req.faces.len() > limits.max_batch {
+        return Err(ServiceError::BatchTooLarge {
+            faces: req.faces.len(),
+            limit: limits.max_batch,
+        }
+        .into());
+    }
+    let model = models.get(req.model.as_deref())?;
+    let mut tally = FaceTally::default();
+    let results = for_each_face(req.faces, deadline, |face| {
+        let spec = FaceSpec {
+            landmarks: &face.landmarks.0,
+            scheme: face.scheme.as_deref().or(req.scheme.as_deref()),
+            method: face.method.as_deref().or(req.method.as_deref()),
+            camera: face.camera.or(req.camera).map(Into::into),
+            style: face
+                .landmark_style
+                .as_deref()
+                .or(req.landmark_style.as_deref()),
+        };
+        match estimate_face(model, &spec) {
+            Ok(p) => {
+                tally.ok(p.record.method);
+                BatchResult::Pose(BatchPose {
+                    pose: p.record,
+                    scheme: p.scheme,
+                    id: face.id,
+                })
+            }
+            Err(error) => {
+                tally.err(error.kind());
+                BatchResult::Error(BatchError {
+                    id: face.id,
+                    error: HttpError::from(error).object(),
+                })
+            }
+        }
+    })
+    .map_err(|_| ServiceError::Timeout {
+        limit: limits.request_timeout,
+    })?;
+    metrics.faces(&tally, Transport::Http);
+    to_json(&BatchResponse {
+        model: model.name.clone(),
+        model_version: model.version.clone(),
+        succeeded: tally.succeeded(),
+        failed: tally.failed(),
+        results,
+    })
+}

@@ -1,0 +1,351 @@
+//! The JSON of the HTTP API: requests and responses of the pose routes and of the model
+//! listings (the OpenAPI document is derived from these types), and their conversions from the
+//! application's views. The upload's types are beside its route (`retrain.rs`).
+
+use facepose_app::views::{ModelView, ModelsView, VersionView, VersionsView};
+use facepose_core::estimate::Intrinsics;
+use facepose_core::model::bundle::Provenance;
+use facepose_core::record::{Landmarks, PoseRecord};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use super::error::ErrorObject;
+
+/// Pinhole camera intrinsics in pixels (image x right, y down).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl From<Camera> for Intrinsics {
+    fn from(c: Camera) -> Self {
+        Intrinsics {
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+        }
+    }
+}
+
+/// A client's identifier for a face (a string or a number), echoed in its result.
+#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
+#[serde(untagged)]
+pub enum FaceId {
+    Text(String),
+    Integer(i64),
+    Number(f64),
+}
+
+impl<'de> Deserialize<'de> for FaceId {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = FaceId;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("id as a string or a number")
+            }
+            fn visit_str<E>(self, v: &str) -> Result<FaceId, E> {
+                Ok(FaceId::Text(v.to_string()))
+            }
+            fn visit_i64<E>(self, v: i64) -> Result<FaceId, E> {
+                Ok(FaceId::Integer(v))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<FaceId, E> {
+                Ok(i64::try_from(v).map_or(FaceId::Number(v as f64), FaceId::Integer))
+            }
+            fn visit_f64<E>(self, v: f64) -> Result<FaceId, E> {
+                Ok(FaceId::Number(v))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// `POST /v1/pose`: one face.
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PoseRequest {
+    /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a
+    /// point that could not be found.
+    #[schema(value_type = Vec<Option<Vec<f64>>>, example = json!([[231.5, 310.0], null]))]
+    pub landmarks: Landmarks,
+    /// The landmark scheme (`ibug68`, `inner51`, `five`, ...); default: the model's own.
+    #[serde(default)]
+    pub scheme: Option<String>,
+    /// `auto` (default), `fit`, `fit-shape`, `regression` or `geometry`.
+    #[serde(default)]
+    pub method: Option<String>,
+    /// The model by name; default: `default`.
+    #[serde(default)]
+    pub model: Option<String>,
+    /// Camera intrinsics: the fit methods then refine the pose under full perspective.
+    #[serde(default)]
+    pub camera: Option<Camera>,
+    /// How the landmarks were made: `projected` (default: every landmark is its 3D point's
+    /// projection, as 3D-style annotations and 3DMM fitters give) or `contour` (2D-style, as
+    /// 300-W / dlib: hidden jaw points sit on the visible outline and the fit leaves them out).
+    #[serde(default)]
+    pub landmark_style: Option<String>,
+    /// Echoed in the response.
+    #[serde(default)]
+    pub id: Option<FaceId>,
+}
+
+/// A pose with its scheme and model.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct PoseResponse {
+    #[serde(flatten)]
+    pub pose: PoseRecord,
+    /// The scheme of the input landmarks.
+    pub scheme: String,
+    /// The model's name and version.
+    pub model: String,
+    pub model_version: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<FaceId>,
+}
+
+/// One face of a batch; `scheme`, `method` and `camera` default to the batch's.
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct BatchFace {
+    #[schema(value_type = Vec<Option<Vec<f64>>>)]
+    pub landmarks: Landmarks,
+    #[serde(default)]
+    pub scheme: Option<String>,
+    #[serde(default)]
+    pub method: Option<String>,
+    #[serde(default)]
+    pub camera: Option<Camera>,
+    #[serde(default)]
+    pub landmark_style: Option<String>,
+    #[serde(default)]
+    pub id: Option<FaceId>,
+}
+
+/// `POST /v1/pose:batch`: many faces, at most `--max-batch` (1000 by default).
+#[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct BatchRequest {
+    pub faces: Vec<BatchFace>,
+    /// Defaults for every face.
+    #[serde(default)]
+    pub scheme: Option<String>,
+    #[serde(default)]
+    pub method: Option<String>,
+    #[serde(default)]
+    pub camera: Option<Camera>,
+    #[serde(default)]
+    pub landmark_style: Option<String>,
+    /// One model for the whole batch; default: `default`.
+    #[serde(default)]
+    pub model: Option<String>,
+}
+
+/// The result for one face of a batch: its pose, or its error.
+#[derive(Debug, Serialize, ToSchema)]
+#[serde(untagged)]
+pub enum BatchResult {
+    Pose(BatchPose),
+    Error(BatchError),
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BatchPose {
+    #[serde(flatten)]
+    pub pose: PoseRecord,
+    pub scheme: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<FaceId>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BatchError {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub id: Option<FaceId>,
+    pub error: ErrorObject,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct BatchResponse {
+    pub model: String,
+    pub model_version: String,
+    pub succeeded: u64,
+    pub failed: u64,
+    /// One per face, in order.
+    pub results: Vec<BatchResult>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SchemeSummary {
+    pub name: String,
+    pub points: usize,
+}
+
+/// A loaded model.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ModelSummary {
+    pub name: String,
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    /// The model's own scheme (the default scheme of requests).
+    pub scheme: String,
+    /// Every scheme it serves, its own first.
+    pub schemes: Vec<SchemeSummary>,
+    /// The methods it supports.
+    pub methods: Vec<String>,
+    /// `sha256:<hex>` of the bundle.
+    pub checksum: String,
+    /// The bundle file, or `embedded`.
+    pub source: String,
+    /// Whether requests that name no model use it.
+    pub default: bool,
+    /// Its versions in the models folder (empty without one): the folder's active one and the
+    /// one this replica serves are marked.
+    pub versions: Vec<VersionSummary>,
+}
+
+/// One version of a model in the models folder.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct VersionSummary {
+    pub version: String,
+    /// RFC 3339.
+    pub created: String,
+    pub checksum: String,
+    /// The model's own scheme in that version.
+    pub scheme: String,
+    /// The bundle file, or `embedded`.
+    pub source: String,
+    /// The folder's active version: what every replica serves once it has followed the
+    /// folder.
+    pub active: bool,
+    /// The version this replica serves.
+    pub served: bool,
+    /// Deployed with the folder (`DIR/<name>/model.json`) or built in: not deletable through
+    /// the API.
+    pub fixed: bool,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct SourceSummary {
+    pub path: String,
+    pub sha256: String,
+    pub shapes: usize,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ProvenanceSummary {
+    pub command: String,
+    pub notes: String,
+    pub sources: Vec<SourceSummary>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ModelsResponse {
+    pub default_model: String,
+    pub models: Vec<ModelSummary>,
+}
+
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Status {
+    /// `alive`, `ready` or `draining`.
+    pub status: &'static str,
+}
+
+/// `GET /v1/models/{name}/versions`.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct VersionsResponse {
+    pub name: String,
+    /// The folder's active version; `null` if none was ever activated.
+    pub active: Option<String>,
+    pub versions: Vec<VersionSummary>,
+}
+
+/// The answer of an activation: the model now served.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct ActivateResponse {
+    #[serde(flatten)]
+    pub model: ModelSummary,
+}
+
+impl From<VersionView> for VersionSummary {
+    fn from(v: VersionView) -> Self {
+        VersionSummary {
+            version: v.version,
+            created: v.created,
+            checksum: v.checksum,
+            scheme: v.scheme,
+            source: v.source,
+            active: v.active,
+            served: v.served,
+            fixed: v.fixed,
+        }
+    }
+}
+
+impl From<ModelView> for ModelSummary {
+    fn from(m: ModelView) -> Self {
+        ModelSummary {
+            name: m.name,
+            version: m.version,
+            created: m.created,
+            scheme: m.scheme,
+            schemes: m
+                .schemes
+                .into_iter()
+                .map(|s| SchemeSummary {
+                    name: s.name,
+                    points: s.points,
+                })
+                .collect(),
+            methods: m.methods.iter().map(|x| x.to_string()).collect(),
+            checksum: m.checksum,
+            source: m.source,
+            default: m.default,
+            versions: m.versions.into_iter().map(Into::into).collect(),
+        }
+    }
+}
+
+impl From<Provenance> for ProvenanceSummary {
+    fn from(p: Provenance) -> Self {
+        ProvenanceSummary {
+            command: p.command,
+            notes: p.notes,
+            sources: p
+                .sources
+                .into_iter()
+                .map(|s| SourceSummary {
+                    path: s.path,
+                    sha256: s.sha256,
+                    shapes: s.shapes,
+                })
+                .collect(),
+        }
+    }
+}
+
+impl From<ModelsView> for ModelsResponse {
+    fn from(v: ModelsView) -> Self {
+        ModelsResponse {
+            default_model: v.default_model,
+            models: v.models.into_iter().map(Into::into).collect(),
+        }
+    }
+}
+
+impl From<VersionsView> for VersionsResponse {
+    fn from(v: VersionsView) -> Self {
+        VersionsResponse {
+            name: v.name,
+            active: v.active,
+            versions: v.versions.into_iter().map(Into::into).collect(),
+        }
+    }
+}
