@@ -1,10 +1,9 @@
 //! The integration tests of the workspace that need the `facepose` binary or the shared data:
-//! the command line as a user runs it, the service as a process (signals, exit codes, kill -9,
-//! the models folder shared by real replicas), and the numeric core against real data. One test
+//! the command line as a user runs it, the service as a process (start-up errors, signals, exit
+//! statuses, kill -9), and the numeric core against real data. One test
 //! binary, one module per subject (the files beside this one).
 
 mod common;
-mod service_support;
 
 mod cli;
 mod cli_estimate;
@@ -13,8 +12,5 @@ mod conventions_aflw;
 mod eval_paper;
 mod hpr_mesh;
 mod model_bundle;
-mod service_grpc;
-mod service_http;
-mod service_lifecycle;
-mod service_registry;
+mod service_process;
 mod sfm_bfm;

@@ -4,6 +4,17 @@
 
 use crate::error::ServiceError;
 
+/// [`tokio::task::spawn_blocking`] in the caller's span: what the work logs is the request's
+/// or the server's, as if it ran where it was called.
+pub fn spawn_blocking<T, F>(f: F) -> tokio::task::JoinHandle<T>
+where
+    F: FnOnce() -> T + Send + 'static,
+    T: Send + 'static,
+{
+    let span = tracing::Span::current();
+    tokio::task::spawn_blocking(move || span.in_scope(f))
+}
+
 /// Runs fallible blocking work (file I/O, training, validation of an upload) on the blocking
 /// pool.
 pub async fn on_blocking_pool<T, F>(what: &str, f: F) -> Result<T, ServiceError>
@@ -11,7 +22,7 @@ where
     F: FnOnce() -> Result<T, ServiceError> + Send + 'static,
     T: Send + 'static,
 {
-    tokio::task::spawn_blocking(f)
+    spawn_blocking(f)
         .await
         .map_err(|e| ServiceError::internal(format!("{what} failed: {e}")))?
 }
@@ -26,7 +37,7 @@ where
     if inline {
         Ok(f())
     } else {
-        tokio::task::spawn_blocking(f)
+        spawn_blocking(f)
             .await
             .map_err(|e| ServiceError::internal(format!("estimation task failed: {e}")))
     }

@@ -117,7 +117,7 @@ impl App {
     pub async fn start(settings: Settings, span: tracing::Span) -> Result<Arc<App>, RegistryError> {
         let dir = settings.models.clone();
         let load_dir = dir.clone();
-        let set = tokio::task::spawn_blocking(move || load_models(load_dir.as_deref()))
+        let set = crate::blocking::spawn_blocking(move || load_models(load_dir.as_deref()))
             .await
             .map_err(|e| RegistryError::Panicked(e.to_string()))??;
         Ok(Self::with_models(settings, set, span))
@@ -344,7 +344,7 @@ impl App {
     where
         E: From<ServiceError> + Send + 'static,
     {
-        let prepared = tokio::task::spawn_blocking(move || -> Result<_, E> {
+        let prepared = crate::blocking::spawn_blocking(move || -> Result<_, E> {
             Ok(retrain::prepare(upload()?)?)
         })
         .await

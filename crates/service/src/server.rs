@@ -258,7 +258,7 @@ async fn serve_app(
             // Their records say so, for the other replicas; within a bound, as the volume may
             // be what held the drain.
             let (jobs, ids) = (app.jobs.clone(), abandoned_jobs.clone());
-            let marked = tokio::task::spawn_blocking(move || jobs.abandon(&ids, cap));
+            let marked = facepose_app::blocking::spawn_blocking(move || jobs.abandon(&ids, cap));
             if tokio::time::timeout(std::time::Duration::from_secs(2), marked).await.is_err() {
                 tracing::warn!("could not mark the abandoned jobs in the models folder in time");
             }

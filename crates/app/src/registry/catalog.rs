@@ -82,7 +82,7 @@ impl Registry {
         }
         let covers = r.requested.load(Ordering::SeqCst);
         let meta = self.meta.clone();
-        let read = tokio::task::spawn_blocking(move || {
+        let read = crate::blocking::spawn_blocking(move || {
             let mut meta = lock(&meta);
             meta.generation += 1;
             let generation = meta.generation;

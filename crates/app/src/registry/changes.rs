@@ -6,6 +6,8 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use tracing::Instrument;
+
 use super::versions::{self, VersionError};
 use super::{
     DEFAULT_MODEL, Registry, Resolved, ServedModel, embedded_version, load_resolved, resolve,
@@ -33,13 +35,16 @@ impl Registry {
         versions::check_name(name).map_err(version_error)?;
         let me = self.clone();
         let (n, v) = (name.to_string(), version.to_string());
-        tokio::spawn(async move {
-            let changes = me.changes.clone().lock_owned().await;
-            let served = me.activate_locked(dir, n, v).await;
-            drop(changes);
-            me.refresh_catalog().await;
-            served
-        })
+        tokio::spawn(
+            async move {
+                let changes = me.changes.clone().lock_owned().await;
+                let served = me.activate_locked(dir, n, v).await;
+                drop(changes);
+                me.refresh_catalog().await;
+                served
+            }
+            .instrument(tracing::Span::current()),
+        )
         .await
         .map_err(|e| ServiceError::internal(format!("activating a version failed: {e}")))?
     }

@@ -74,7 +74,7 @@ impl Registry {
                 .collect()
         };
         let outcomes =
-            tokio::task::spawn_blocking(move || sync_pass(&dir, &snapshot, &skip, clean)).await;
+            crate::blocking::spawn_blocking(move || sync_pass(&dir, &snapshot, &skip, clean)).await;
         let outcomes = match outcomes {
             Ok(o) => o,
             Err(e) => {

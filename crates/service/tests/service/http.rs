@@ -1,9 +1,12 @@
-//! The HTTP JSON API of `facepose serve`, black box: the real binary on a loopback port.
+//! The HTTP JSON API of `facepose serve`, black box: the server in-process on a loopback port.
 //! Poses come from the default model's mean shape projected at known angles, so the expected
 //! answers are independent of the estimator.
 
-use crate::service_support::*;
 use facepose_core::geometry::geodesic_deg;
+use facepose_testkit::Endpoint;
+use facepose_testkit::faces::*;
+use facepose_testkit::raw::*;
+use facepose_testkit::server::Server;
 use reqwest::StatusCode;
 use serde_json::{Value, json};
 

@@ -1,16 +1,35 @@
-//! `facepose serve` as an operator sees it: model folders and startup errors, overload and
-//! timeouts (refused, not collapsed), and a graceful shutdown with streams open.
+//! `facepose serve` as a process, for what only a process shows: start-up errors and their
+//! exit status, SIGTERM's drain (with streams open, with retraining jobs accepted), a drain cut
+//! short (exit 3), kill -9 while versions are written. Everything else about the service is
+//! tested in-process (crates/service/tests).
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use crate::service_support::*;
 use facepose_core::model::bundle::Bundle;
-use facepose_files::store::write_bundle_dir;
+use facepose_files::store::{MODEL_FILE, load_model, write_bundle_dir};
 use facepose_service::proto;
+use facepose_testkit::faces::*;
+use facepose_testkit::process::Process;
+use facepose_testkit::registry::*;
+use facepose_testkit::{Endpoint, open_stream};
+use rand::{Rng, SeedableRng, rngs::StdRng};
+use reqwest::StatusCode;
 use serde_json::{Value, json};
 use tokio_stream::StreamExt;
 use tonic::Code;
+
+const BIN: &str = env!("CARGO_BIN_EXE_facepose");
+
+/// A server on `dir` with the admin token in the environment and a short poll period.
+fn admin_server(dir: &TempDir, poll: &str) -> Process {
+    Process::start_with(
+        BIN,
+        &["--models", dir.arg(), "--registry-poll", poll],
+        None,
+        &[("FACEPOSE_ADMIN_TOKEN", ADMIN_TOKEN)],
+    )
+}
 
 fn temp_dir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!(
@@ -55,7 +74,7 @@ async fn model_folders_and_startup_errors() {
     write_bundle_dir(&dir.join("alt"), &renamed_bundle("alt", "7")).unwrap();
     std::fs::create_dir_all(dir.join(".alt.tmp-1")).unwrap();
     std::fs::write(dir.join(".alt.tmp-1/model.json"), "{ half written").unwrap();
-    let server = Server::start(&["--models", dir.to_str().unwrap()]);
+    let server = Process::start(BIN, &["--models", dir.to_str().unwrap()]);
     let c = reqwest::Client::new();
     let v: Value = c
         .get(server.url("/v1/models"))
@@ -122,85 +141,11 @@ async fn model_folders_and_startup_errors() {
 }
 
 #[tokio::test]
-async fn overload_and_timeouts_are_refused_not_collapsed() {
-    let server = Server::start(&["--max-concurrency", "1", "--request-timeout", "800ms"]);
-    let c = reqwest::Client::new();
-    let face = json!({"landmarks": face68(0.0, 0.0, 0.0), "method": "fit"});
-    let proto_face = proto_face(&face68(0.0, 0.0, 0.0), "", "", "");
-    let mut g = server.grpc().await;
-    // A slow client holds the only slot: its body trickles in, and the time limit covers reading
-    // it.
-    let addr = server.addr;
-    let slow = std::thread::spawn(move || {
-        use std::io::{Read, Write};
-        let t = Instant::now();
-        let mut s = std::net::TcpStream::connect(addr).unwrap();
-        s.set_read_timeout(Some(Duration::from_secs(5))).unwrap();
-        s.write_all(
-            b"POST /v1/pose HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"landm",
-        )
-        .unwrap();
-        let mut text = String::new();
-        let _ = s.read_to_string(&mut text);
-        (text, t.elapsed())
-    });
-    // While it runs: HTTP 429 and gRPC UNAVAILABLE, at once.
-    tokio::time::sleep(Duration::from_millis(100)).await;
-    let t = Instant::now();
-    let r = c
-        .post(server.url("/v1/pose"))
-        .json(&face)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), reqwest::StatusCode::TOO_MANY_REQUESTS);
-    assert_eq!(r.headers()["retry-after"], "1");
-    let v: Value = r.json().await.unwrap();
-    assert_eq!(v["error"]["code"], "overloaded");
-    assert!(
-        v["error"]["message"]
-            .as_str()
-            .unwrap()
-            .contains("retry with backoff")
-    );
-    let err = g
-        .estimate(proto::EstimateRequest {
-            face: Some(proto_face),
-            model: String::new(),
-        })
-        .await
-        .map(|_| ())
-        .expect_err("an error status");
-    assert_eq!(err.code(), Code::Unavailable, "{err:?}");
-    assert!(
-        t.elapsed() < Duration::from_millis(250),
-        "refusals must be immediate"
-    );
-    // Health does not queue behind the work.
-    assert_eq!(raw_get(server.addr, "/healthz").unwrap().0, 200);
-    let (text, took) = slow.join().unwrap();
-    assert!(text.starts_with("HTTP/1.1 503"), "{text}");
-    assert!(
-        text.contains("\"code\":\"timeout\"") && text.contains("800ms"),
-        "{text}"
-    );
-    assert!(took < Duration::from_secs(2), "{took:?}");
-    // And then it serves normally.
-    let r = c
-        .post(server.url("/v1/pose"))
-        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0), "method": "fit"}))
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(r.status(), reqwest::StatusCode::OK);
-}
-
-#[tokio::test]
 async fn sigterm_drains_with_streams_open() {
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
 
-    let mut server = Server::start(&["--drain-timeout", "5s"]);
+    let mut server = Process::start(BIN, &["--drain-timeout", "5s"]);
     let mut c = server.grpc().await;
     let (tx, mut out) = open_stream(&mut c, 4).await;
     tx.send(proto::Frame {
@@ -265,7 +210,7 @@ async fn sigterm_drains_with_streams_open() {
 async fn a_drain_cut_short_by_its_cap_exits_with_an_error() {
     use tokio::io::AsyncWriteExt;
 
-    let mut server = Server::start(&["--drain-timeout", "1s", "--request-timeout", "30s"]);
+    let mut server = Process::start(BIN, &["--drain-timeout", "1s", "--request-timeout", "30s"]);
     let mut tcp = tokio::net::TcpStream::connect(server.addr).await.unwrap();
     tcp.write_all(
         b"POST /v1/pose HTTP/1.1\r\nhost: facepose\r\ncontent-type: application/json\r\n\
@@ -295,4 +240,143 @@ async fn a_drain_cut_short_by_its_cap_exits_with_an_error() {
     );
     assert!(!logs.contains("stopped"), "{logs}");
     drop(tcp);
+}
+
+/// (c) kill -9 at random moments while versions are written and activated, 22 times: every
+/// restart serves the active version, and the pointer never names a partial version. The
+/// moments spread over 1.5 times what a job takes on the machine (measured first).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
+    let dir = TempDir::new("crash");
+    let c = client();
+    let mut rng = StdRng::seed_from_u64(20111);
+    let shapes = population(24, |p| p);
+    let body = json!({"shapes": shapes_json(&shapes), "options": quick_options()});
+    // How long a job takes on this machine, upload to written version, in a folder of its own:
+    // the kills come at up to 1.5 times that after the start, so that some rounds write
+    // versions however fast the machine is.
+    let job_time = {
+        let calibration = TempDir::new("crash-calibration");
+        let server = admin_server(&calibration, "100ms");
+        let t = Instant::now();
+        let (s, job) = json_of(upload(&c, &server, &body).await).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+        let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
+        assert_eq!(job["state"], "succeeded", "{job}");
+        t.elapsed()
+    };
+    let max_delay = (job_time.as_millis() as u64 * 3 / 2).max(350);
+    let (mut active, mut versions) = ("1".to_string(), Vec::new());
+    // At least 22 rounds, and more (up to 60) until three versions have been written: whether
+    // a round writes one depends on the machine's speed in that round, not only on the delay.
+    for round in 0..60 {
+        if round >= 22 && versions.len() >= 3 {
+            break;
+        }
+        let mut server = admin_server(&dir, "100ms");
+        // It started, so the active version loaded; it is the one the folder names.
+        assert_eq!(served_version(&c, &server).await, active, "round {round}");
+        // A retraining job, and activations back and forth among the versions there are.
+        let upload = {
+            let (c, url, body) = (c.clone(), server.url("/v1/models"), body.clone());
+            tokio::spawn(async move {
+                let _ = c
+                    .post(url)
+                    .bearer_auth(ADMIN_TOKEN)
+                    .json(&body)
+                    .send()
+                    .await;
+            })
+        };
+        let flips = {
+            let (c, base) = (c.clone(), server.base.clone());
+            let mut choices = versions.clone();
+            choices.push("1".into());
+            let seed = rng.random::<u64>();
+            tokio::spawn(async move {
+                let mut rng = StdRng::seed_from_u64(seed);
+                loop {
+                    let v = &choices[rng.random_range(0..choices.len())];
+                    let url = format!("{base}/v1/models/default/versions/{v}:activate");
+                    if c.post(url).bearer_auth(ADMIN_TOKEN).send().await.is_err() {
+                        break;
+                    }
+                }
+            })
+        };
+        let delay = rng.random_range(0..max_delay);
+        tokio::time::sleep(Duration::from_millis(delay)).await;
+        server.kill9();
+        let _ = upload.await;
+        let _ = flips.await;
+        (active, versions) = check_folder(dir.path(), &versions);
+    }
+    assert!(
+        versions.len() >= 3,
+        "only {versions:?} were written in 60 rounds (a job takes {job_time:?} here, kills \
+         within {max_delay} ms): the rounds were too short to test much"
+    );
+    let server = admin_server(&dir, "100ms");
+    assert_eq!(served_version(&c, &server).await, active);
+    let (s, v) = json_of(
+        c.post(server.url("/v1/pose"))
+            .json(&json!({"landmarks": face68(10.0, 0.0, 0.0)}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        (s, v["model_version"].as_str()),
+        (StatusCode::OK, Some(active.as_str())),
+        "{v}"
+    );
+    assert!(!versions.is_empty());
+}
+
+/// SIGTERM with retraining jobs accepted (one training, one queued behind it): the drain waits
+/// for both, so the uploads the server said 202 to are not lost; their versions are in the
+/// folder when the process exits 0.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_waits_for_the_accepted_retraining_jobs() {
+    let dir = TempDir::new("drain-jobs");
+    let mut server = Process::start_with(
+        BIN,
+        &[
+            "--models",
+            dir.arg(),
+            "--registry-poll",
+            "1s",
+            "--drain-timeout",
+            "30s",
+        ],
+        None,
+        &[("FACEPOSE_ADMIN_TOKEN", ADMIN_TOKEN)],
+    );
+    let c = client();
+    let body = json!({"shapes": shapes_json(&population(120, |p| p)),
+        "options": quick_options(), "activate": false});
+    for _ in 0..2 {
+        let (s, job) = post_admin(&c, &server, "/v1/models", &body).await;
+        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
+    }
+    drop(c);
+    server.terminate();
+    let status = server
+        .wait_exit(Duration::from_secs(30))
+        .await
+        .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
+    assert!(status.success(), "{status:?}\n{}", server.logs());
+    for version in ["2", "3"] {
+        let file = dir
+            .path()
+            .join("default/versions")
+            .join(version)
+            .join(MODEL_FILE);
+        assert!(
+            load_model(&file).is_ok(),
+            "version {version} missing; logs:\n{}",
+            server.logs()
+        );
+    }
 }

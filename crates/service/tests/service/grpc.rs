@@ -2,9 +2,11 @@
 //! unary, batch, bidirectional streaming with smoothing, the packed landmark form, models, the
 //! standard health service and server reflection. Expected poses are those the faces were projected at.
 
-use crate::service_support::*;
 use facepose_core::geometry::geodesic_deg;
 use facepose_service::proto::{self, face_result};
+use facepose_testkit::faces::*;
+use facepose_testkit::server::Server;
+use facepose_testkit::{Endpoint, open_stream};
 use tokio_stream::StreamExt;
 use tonic::Code;
 

@@ -6,201 +6,27 @@
 //! were projected at, the deformation applied to the uploaded shapes, and the folder as read
 //! by the library.
 
-use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use crate::service_support::*;
-use facepose_core::geometry::{WeakPerspective, geodesic_deg};
-use facepose_core::model::bundle::Bundle;
-use facepose_files::store::{MODEL_FILE, load_model, write_bundle_dir};
-use nalgebra::{Vector2, Vector3};
-use rand::{Rng, SeedableRng, rngs::StdRng};
+use facepose_core::geometry::geodesic_deg;
+use facepose_files::store::{MODEL_FILE, load_model};
+use facepose_testkit::faces::*;
+use facepose_testkit::raw::*;
+use facepose_testkit::registry::*;
+use facepose_testkit::server::Server;
+use facepose_testkit::{Endpoint, open_stream};
+use nalgebra::Vector3;
 use reqwest::StatusCode;
 use serde_json::{Value, json};
 use tokio_stream::StreamExt;
 use tonic::Code;
 
-const TOKEN: &str = "test-admin-token-0123456789";
-
-/// A temporary folder, removed when dropped.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .unwrap()
-            .as_nanos();
-        let d = std::env::temp_dir().join(format!(
-            "facepose-registry-{tag}-{}-{nanos}",
-            std::process::id()
-        ));
-        std::fs::create_dir_all(&d).unwrap();
-        TempDir(d)
-    }
-
-    fn path(&self) -> &Path {
-        &self.0
-    }
-
-    fn arg(&self) -> &str {
-        self.0.to_str().unwrap()
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 /// A server on `dir` with the admin token in the environment and a short poll period.
 fn admin_server(dir: &TempDir, poll: &str) -> Server {
-    Server::start_with(
+    Server::start_admin(
         &["--models", dir.arg(), "--registry-poll", poll],
-        None,
-        &[("FACEPOSE_ADMIN_TOKEN", TOKEN)],
+        ADMIN_TOKEN,
     )
-}
-
-/// The first `n` shapes of bfm68 `population_249.json` (mm), each point mapped by `f`.
-fn population(n: usize, f: impl Fn(Vector3<f64>) -> Vector3<f64>) -> Vec<Vec<Vector3<f64>>> {
-    let path = facepose_files::data::data_dir().join("bfm68/population_249.json");
-    let pop = facepose_files::data::load_population(&path).expect("the shared bfm68 population");
-    pop.shapes
-        .into_iter()
-        .take(n)
-        .map(|s| s.into_iter().map(&f).collect())
-        .collect()
-}
-
-fn shapes_json(shapes: &[Vec<Vector3<f64>>]) -> Value {
-    json!(
-        shapes
-            .iter()
-            .map(|s| s.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>())
-            .collect::<Vec<_>>()
-    )
-}
-
-/// Training options that train in a fraction of a second: a coarse grid, no bins.
-fn quick_options() -> Value {
-    json!({"grid": {"coarse": {"yaw": [-60, 60, 15], "pitch": [-30, 30, 15]}}, "components": 5})
-}
-
-/// A copy of the default bundle as version `version` of `DIR/default` (what an operator could
-/// place there), written atomically.
-fn place_default_copy(dir: &Path, version: &str) {
-    let mut b = Bundle::parse(facepose_core::model::DEFAULT_BUNDLE).unwrap();
-    b.version = version.into();
-    b.created = format!("2026-11-2{version}T00:00:00Z");
-    b.checksum = b.compute_checksum().unwrap();
-    write_bundle_dir(&dir.join("default/versions").join(version), &b).unwrap();
-}
-
-fn client() -> reqwest::Client {
-    reqwest::Client::builder()
-        .timeout(Duration::from_secs(30))
-        .build()
-        .unwrap()
-}
-
-async fn json_of(r: reqwest::Response) -> (StatusCode, Value) {
-    let status = r.status();
-    let text = r.text().await.unwrap();
-    let v = serde_json::from_str(&text).unwrap_or(Value::Null);
-    (status, v)
-}
-
-async fn post_admin(
-    c: &reqwest::Client,
-    server: &Server,
-    path: &str,
-    body: &Value,
-) -> (StatusCode, Value) {
-    json_of(
-        c.post(server.url(path))
-            .bearer_auth(TOKEN)
-            .json(body)
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await
-}
-
-async fn activate(c: &reqwest::Client, server: &Server, version: &str) -> (StatusCode, Value) {
-    json_of(
-        c.post(server.url(&format!("/v1/models/default/versions/{version}:activate")))
-            .bearer_auth(TOKEN)
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await
-}
-
-async fn get(c: &reqwest::Client, server: &Server, path: &str) -> (StatusCode, Value) {
-    json_of(c.get(server.url(path)).send().await.unwrap()).await
-}
-
-/// `POST /v1/models` of `body` with the admin token: the answer whole (status, headers, job).
-async fn upload(c: &reqwest::Client, server: &Server, body: &Value) -> reqwest::Response {
-    c.post(server.url("/v1/models"))
-        .bearer_auth(TOKEN)
-        .json(body)
-        .send()
-        .await
-        .unwrap()
-}
-
-/// The server's Prometheus text.
-async fn metrics_text(c: &reqwest::Client, server: &Server) -> String {
-    c.get(server.url("/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap()
-}
-
-/// Polls a job until it ends (deadline 60 s).
-async fn wait_job(c: &reqwest::Client, server: &Server, id: &str) -> Value {
-    let t = Instant::now();
-    loop {
-        let (s, j) = get(c, server, &format!("/v1/models/jobs/{id}")).await;
-        assert_eq!(s, StatusCode::OK, "{j}");
-        if j["state"] == "succeeded" || j["state"] == "failed" || j["state"] == "cancelled" {
-            return j;
-        }
-        assert!(t.elapsed() < Duration::from_secs(60), "job still {j}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
-/// 68 landmarks of `mean` seen at a known pose by a weak-perspective camera.
-fn project(mean: &[Vector3<f64>], yaw: f64, pitch: f64, roll: f64) -> Vec<[f64; 2]> {
-    let cam =
-        WeakPerspective::new(rotation(yaw, pitch, roll), 2.3, Vector2::new(300.0, -260.0)).unwrap();
-    mean.iter()
-        .map(|x| {
-            let p = cam.project(x);
-            [p.x, p.y]
-        })
-        .collect()
-}
-
-/// Depth of the nose tip (30) in front of the outer eye corners (36, 45), mm.
-fn nose_depth(mean: &[Vector3<f64>]) -> f64 {
-    mean[30].z - (mean[36].z + mean[45].z) / 2.0
-}
-
-/// The served model's version of `default`.
-async fn served_version(c: &reqwest::Client, server: &Server) -> String {
-    let (s, v) = get(c, server, "/v1/models/default").await;
-    assert_eq!(s, StatusCode::OK, "{v}");
-    v["version"].as_str().unwrap().to_string()
 }
 
 /// (a) An upload of deeper faces (the population with z stretched 1.5 times) becomes the
@@ -454,133 +280,6 @@ async fn swaps_under_load_fail_no_request() {
     );
 }
 
-/// The folder as the library reads it: `ACTIVE` (if any) is one line naming a version that
-/// loads, and every numbered version not in `known` loads (a version is complete once it has
-/// its name, and immutable: the known ones were checked in an earlier round). Hidden
-/// temporaries are ignored. Returns the active version and the numbered ones.
-fn check_folder(dir: &Path, known: &[String]) -> (String, Vec<String>) {
-    let model = dir.join("default");
-    let active = match std::fs::read_to_string(model.join("ACTIVE")) {
-        Ok(text) => {
-            assert!(
-                text.ends_with('\n') && text.lines().count() == 1,
-                "torn pointer {text:?}"
-            );
-            text.trim().to_string()
-        }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "1".to_string(),
-        Err(e) => panic!("{e}"),
-    };
-    let mut versions = Vec::new();
-    if let Ok(entries) = std::fs::read_dir(model.join("versions")) {
-        for e in entries.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            if name.starts_with('.') {
-                continue;
-            }
-            if !known.contains(&name) || name == active {
-                let (b, _) = load_model(&e.path().join(MODEL_FILE))
-                    .unwrap_or_else(|err| panic!("version {name} is incomplete: {err}"));
-                assert_eq!(b.version, name);
-            }
-            versions.push(name);
-        }
-    }
-    versions.sort_by_key(|v| v.parse::<u64>().unwrap());
-    assert!(
-        active == "1" || versions.contains(&active),
-        "ACTIVE names {active}, not a complete version ({versions:?})"
-    );
-    (active, versions)
-}
-
-/// (c) kill -9 at random moments while versions are written and activated, 22 times: every
-/// restart serves the active version, and the pointer never names a partial version. The
-/// moments spread over 1.5 times what a job takes on the machine (measured first).
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn kill_9_during_writes_never_leaves_a_partial_version_active() {
-    let dir = TempDir::new("crash");
-    let c = client();
-    let mut rng = StdRng::seed_from_u64(20111);
-    let shapes = population(24, |p| p);
-    let body = json!({"shapes": shapes_json(&shapes), "options": quick_options()});
-    // How long a job takes on this machine, upload to written version, in a folder of its own:
-    // the kills come at up to 1.5 times that after the start, so that some rounds write
-    // versions however fast the machine is.
-    let job_time = {
-        let calibration = TempDir::new("crash-calibration");
-        let server = admin_server(&calibration, "100ms");
-        let t = Instant::now();
-        let (s, job) = json_of(upload(&c, &server, &body).await).await;
-        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
-        let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
-        assert_eq!(job["state"], "succeeded", "{job}");
-        t.elapsed()
-    };
-    let max_delay = (job_time.as_millis() as u64 * 3 / 2).max(350);
-    let (mut active, mut versions) = ("1".to_string(), Vec::new());
-    // At least 22 rounds, and more (up to 60) until three versions have been written: whether
-    // a round writes one depends on the machine's speed in that round, not only on the delay.
-    for round in 0..60 {
-        if round >= 22 && versions.len() >= 3 {
-            break;
-        }
-        let mut server = admin_server(&dir, "100ms");
-        // It started, so the active version loaded; it is the one the folder names.
-        assert_eq!(served_version(&c, &server).await, active, "round {round}");
-        // A retraining job, and activations back and forth among the versions there are.
-        let upload = {
-            let (c, url, body) = (c.clone(), server.url("/v1/models"), body.clone());
-            tokio::spawn(async move {
-                let _ = c.post(url).bearer_auth(TOKEN).json(&body).send().await;
-            })
-        };
-        let flips = {
-            let (c, base) = (c.clone(), server.base.clone());
-            let mut choices = versions.clone();
-            choices.push("1".into());
-            let seed = rng.random::<u64>();
-            tokio::spawn(async move {
-                let mut rng = StdRng::seed_from_u64(seed);
-                loop {
-                    let v = &choices[rng.random_range(0..choices.len())];
-                    let url = format!("{base}/v1/models/default/versions/{v}:activate");
-                    if c.post(url).bearer_auth(TOKEN).send().await.is_err() {
-                        break;
-                    }
-                }
-            })
-        };
-        let delay = rng.random_range(0..max_delay);
-        tokio::time::sleep(Duration::from_millis(delay)).await;
-        server.kill9();
-        let _ = upload.await;
-        let _ = flips.await;
-        (active, versions) = check_folder(dir.path(), &versions);
-    }
-    assert!(
-        versions.len() >= 3,
-        "only {versions:?} were written in 60 rounds (a job takes {job_time:?} here, kills \
-         within {max_delay} ms): the rounds were too short to test much"
-    );
-    let server = admin_server(&dir, "100ms");
-    assert_eq!(served_version(&c, &server).await, active);
-    let (s, v) = json_of(
-        c.post(server.url("/v1/pose"))
-            .json(&json!({"landmarks": face68(10.0, 0.0, 0.0)}))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
-    assert_eq!(
-        (s, v["model_version"].as_str()),
-        (StatusCode::OK, Some(active.as_str())),
-        "{v}"
-    );
-    assert!(!versions.is_empty());
-}
-
 /// An HTTP/1.1 exchange written by hand: `head` (request line and headers, without the blank
 /// line), then the body, written by another thread while this one reads the answer, so that an
 /// answer sent before the whole body is read all the same. (status, body).
@@ -601,24 +300,6 @@ fn raw_exchange(
     parse_answer(&String::from_utf8_lossy(&text))
 }
 
-/// An error answer's code and message, checked against what is expected.
-fn assert_error(status: StatusCode, v: &Value, want: StatusCode, code: &str, message: &str) {
-    assert_eq!(status, want, "{v}");
-    assert_eq!(v["error"]["code"], code, "{v}");
-    let m = v["error"]["message"].as_str().unwrap();
-    assert!(m.contains(message), "want {message:?} in {m:?}");
-}
-
-/// Views of `shape` from five yaws (image pixels), as a multi-view subject.
-fn views_of(shape: &[Vector3<f64>]) -> Value {
-    json!(
-        [-30.0, -15.0, 0.0, 15.0, 30.0]
-            .iter()
-            .map(|&yaw| project(shape, yaw, 5.0, 0.0))
-            .collect::<Vec<_>>()
-    )
-}
-
 /// (d) Malformed or unusable uploads get 4xx answers that say what to fix; usable uploads with
 /// a few bad shapes are accepted with the bad shapes listed; the server stays healthy.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -629,7 +310,7 @@ async fn malformed_uploads_get_4xx_with_reasons() {
     let good = population(12, |p| p);
     let post_text = |text: String, ct: &'static str| {
         c.post(server.url("/v1/models"))
-            .bearer_auth(TOKEN)
+            .bearer_auth(ADMIN_TOKEN)
             .header("content-type", ct)
             .body(text)
             .send()
@@ -756,7 +437,7 @@ async fn malformed_uploads_get_4xx_with_reasons() {
     let (s, body) = raw_exchange(
         &server,
         format!(
-            "POST /v1/models HTTP/1.1\r\nAuthorization: Bearer {TOKEN}\r\nContent-Type: application/json\r\nContent-Length: {}",
+            "POST /v1/models HTTP/1.1\r\nAuthorization: Bearer {ADMIN_TOKEN}\r\nContent-Type: application/json\r\nContent-Length: {}",
             (64 << 20) + 1
         ),
         |_| {},
@@ -769,7 +450,7 @@ async fn malformed_uploads_get_4xx_with_reasons() {
     let (s, body) = raw_exchange(
         &server,
         format!(
-            "POST /v1/models HTTP/1.1\r\nAuthorization: Bearer {TOKEN}\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked"
+            "POST /v1/models HTTP/1.1\r\nAuthorization: Bearer {ADMIN_TOKEN}\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked"
         ),
         |w| {
             use std::io::Write;
@@ -889,8 +570,10 @@ async fn malformed_uploads_get_4xx_with_reasons() {
         },
     ];
     let mut req = tonic::Request::new(tokio_stream::iter(chunks));
-    req.metadata_mut()
-        .insert("authorization", format!("Bearer {TOKEN}").parse().unwrap());
+    req.metadata_mut().insert(
+        "authorization",
+        format!("Bearer {ADMIN_TOKEN}").parse().unwrap(),
+    );
     let job = grpc.retrain(req).await.unwrap().into_inner();
     let v = job.validation.unwrap();
     assert_eq!((v.total, v.kept), (13, 12));
@@ -927,8 +610,10 @@ async fn malformed_uploads_get_4xx_with_reasons() {
         let mut grpc = grpc.clone();
         async move {
             let mut req = tonic::Request::new(tokio_stream::iter(chunks));
-            req.metadata_mut()
-                .insert("authorization", format!("Bearer {TOKEN}").parse().unwrap());
+            req.metadata_mut().insert(
+                "authorization",
+                format!("Bearer {ADMIN_TOKEN}").parse().unwrap(),
+            );
             grpc.retrain(req).await.unwrap_err()
         }
     };
@@ -990,21 +675,17 @@ async fn the_auth_matrix() {
     let dir = TempDir::new("auth");
     place_default_copy(dir.path(), "2");
     let token_file = dir.path().join("admin-token");
-    std::fs::write(&token_file, format!("{TOKEN}\n")).unwrap();
-    let off = Server::start_with(&["--models", dir.arg()], None, &[]);
-    let on = Server::start_with(
-        &[
-            "--models",
-            dir.arg(),
-            "--admin-token-file",
-            token_file.to_str().unwrap(),
-            // Everything the server can log, so that a token in any message shows.
-            "--log",
-            "debug",
-        ],
-        None,
-        &[],
-    );
+    std::fs::write(&token_file, format!("{ADMIN_TOKEN}\n")).unwrap();
+    let off = Server::start(&["--models", dir.arg()]);
+    let on = Server::start(&[
+        "--models",
+        dir.arg(),
+        "--admin-token-file",
+        token_file.to_str().unwrap(),
+        // Everything the server can log, so that a token in any message shows.
+        "--log",
+        "debug",
+    ]);
     let c = client();
     let upload = json!({"shapes": []});
     // (method, path) of every admin route.
@@ -1023,7 +704,7 @@ async fn the_auth_matrix() {
         r.send()
     };
     for (method, path) in &admin {
-        for auth in [None, Some(format!("Bearer {TOKEN}"))] {
+        for auth in [None, Some(format!("Bearer {ADMIN_TOKEN}"))] {
             let r = send(&off, method, path, auth).await.unwrap();
             let (s, v) = json_of(r).await;
             assert_error(
@@ -1036,10 +717,16 @@ async fn the_auth_matrix() {
         }
         for (auth, message) in [
             (None, "missing admin token"),
-            (Some(format!("Bearer {TOKEN}x")), "invalid admin token"),
+            (
+                Some(format!("Bearer {ADMIN_TOKEN}x")),
+                "invalid admin token",
+            ),
             (Some("Bearer wrong".to_string()), "invalid admin token"),
-            (Some(format!("Basic {TOKEN}")), "must be \"Bearer <token>\""),
-            (Some(TOKEN.to_string()), "must be \"Bearer <token>\""),
+            (
+                Some(format!("Basic {ADMIN_TOKEN}")),
+                "must be \"Bearer <token>\"",
+            ),
+            (Some(ADMIN_TOKEN.to_string()), "must be \"Bearer <token>\""),
         ] {
             let r = send(&on, method, path, auth).await.unwrap();
             let challenge = r
@@ -1066,9 +753,14 @@ async fn the_auth_matrix() {
         .expect("an answer, not a broken pipe");
     assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
     // The right token: the route's own answer.
-    let r = send(&on, "POST", &admin[0].1, Some(format!("Bearer {TOKEN}")))
-        .await
-        .unwrap();
+    let r = send(
+        &on,
+        "POST",
+        &admin[0].1,
+        Some(format!("Bearer {ADMIN_TOKEN}")),
+    )
+    .await
+    .unwrap();
     let (s, v) = json_of(r).await;
     assert_error(
         s,
@@ -1083,9 +775,14 @@ async fn the_auth_matrix() {
         (StatusCode::OK, Some("2")),
         "{v}"
     );
-    let r = send(&on, "DELETE", &admin[2].1, Some(format!("Bearer {TOKEN}")))
-        .await
-        .unwrap();
+    let r = send(
+        &on,
+        "DELETE",
+        &admin[2].1,
+        Some(format!("Bearer {ADMIN_TOKEN}")),
+    )
+    .await
+    .unwrap();
     let (s, v) = json_of(r).await;
     assert_error(
         s,
@@ -1098,7 +795,7 @@ async fn the_auth_matrix() {
         &on,
         "DELETE",
         "/v1/models/default/versions/2",
-        Some(format!("Bearer {TOKEN}")),
+        Some(format!("Bearer {ADMIN_TOKEN}")),
     )
     .await
     .unwrap();
@@ -1159,7 +856,7 @@ async fn the_auth_matrix() {
         }
     };
     for which in 0..3 {
-        for auth in [None, Some(format!("Bearer {TOKEN}"))] {
+        for auth in [None, Some(format!("Bearer {ADMIN_TOKEN}"))] {
             let e = call(&off, auth, which).await.unwrap_err();
             assert_eq!(e.code(), Code::PermissionDenied, "{which}: {e:?}");
         }
@@ -1168,7 +865,7 @@ async fn the_auth_matrix() {
             assert_eq!(e.code(), Code::Unauthenticated, "{which}: {e:?}");
         }
     }
-    let right = Some(format!("Bearer {TOKEN}"));
+    let right = Some(format!("Bearer {ADMIN_TOKEN}"));
     let e = call(&on, right.clone(), 0).await.unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument, "{e:?}");
     assert!(e.message().contains("no shapes"), "{e:?}");
@@ -1217,7 +914,7 @@ async fn the_auth_matrix() {
             .unwrap();
     }
     assert!(
-        !on.logs().contains(TOKEN) && !on.logs().contains("test-admin-token"),
+        !on.logs().contains(ADMIN_TOKEN) && !on.logs().contains("test-admin-token"),
         "the token is logged"
     );
     assert!(
@@ -1343,52 +1040,6 @@ async fn replicas_sharing_a_folder_converge() {
     }
 }
 
-/// SIGTERM with retraining jobs accepted (one training, one queued behind it): the drain waits
-/// for both, so the uploads the server said 202 to are not lost; their versions are in the
-/// folder when the process exits 0.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn sigterm_waits_for_the_accepted_retraining_jobs() {
-    let dir = TempDir::new("drain-jobs");
-    let mut server = Server::start_with(
-        &[
-            "--models",
-            dir.arg(),
-            "--registry-poll",
-            "1s",
-            "--drain-timeout",
-            "30s",
-        ],
-        None,
-        &[("FACEPOSE_ADMIN_TOKEN", TOKEN)],
-    );
-    let c = client();
-    let body = json!({"shapes": shapes_json(&population(120, |p| p)),
-        "options": quick_options(), "activate": false});
-    for _ in 0..2 {
-        let (s, job) = post_admin(&c, &server, "/v1/models", &body).await;
-        assert_eq!(s, StatusCode::ACCEPTED, "{job}");
-    }
-    drop(c);
-    server.terminate();
-    let status = server
-        .wait_exit(Duration::from_secs(30))
-        .await
-        .unwrap_or_else(|| panic!("not exited; logs:\n{}", server.logs()));
-    assert!(status.success(), "{status:?}\n{}", server.logs());
-    for version in ["2", "3"] {
-        let file = dir
-            .path()
-            .join("default/versions")
-            .join(version)
-            .join(MODEL_FILE);
-        assert!(
-            load_model(&file).is_ok(),
-            "version {version} missing; logs:\n{}",
-            server.logs()
-        );
-    }
-}
-
 /// Cancelling: three jobs accepted, the third (queued behind two) cancelled over gRPC never
 /// trains, the other two write their versions; then every refusal over HTTP: the same job
 /// again, a finished one, an unknown id, no token, no action.
@@ -1409,8 +1060,10 @@ async fn a_queued_job_can_be_cancelled() {
         let mut req =
             tonic::Request::new(facepose_service::proto::CancelJobRequest { id: id.to_string() });
         if token {
-            req.metadata_mut()
-                .insert("authorization", format!("Bearer {TOKEN}").parse().unwrap());
+            req.metadata_mut().insert(
+                "authorization",
+                format!("Bearer {ADMIN_TOKEN}").parse().unwrap(),
+            );
         }
         req
     };
@@ -1495,7 +1148,7 @@ async fn a_queued_job_can_be_cancelled() {
 async fn jobs_are_seen_and_cancelled_through_any_replica() {
     let dir = TempDir::new("replica-jobs");
     let replica = |name: &str| {
-        Server::start_with(
+        Server::start_admin(
             &[
                 "--models",
                 dir.arg(),
@@ -1504,8 +1157,7 @@ async fn jobs_are_seen_and_cancelled_through_any_replica() {
                 "--replica",
                 name,
             ],
-            None,
-            &[("FACEPOSE_ADMIN_TOKEN", TOKEN)],
+            ADMIN_TOKEN,
         )
     };
     let (a, b) = (replica("replica-a"), replica("replica-b"));
