@@ -19,14 +19,19 @@ WORKDIR /src
 COPY Cargo.toml Cargo.lock ./
 COPY crates/core/Cargo.toml crates/core/
 COPY crates/files/Cargo.toml crates/files/
-COPY crates/service/Cargo.toml crates/service/build.rs crates/service/
-COPY proto ./proto
-RUN mkdir -p src crates/core/src crates/core/benches crates/files/src crates/service/src crates/service/benches \
+COPY crates/app/Cargo.toml crates/app/
+COPY crates/service/Cargo.toml crates/service/
+COPY crates/testkit/Cargo.toml crates/testkit/
+COPY crates/protogen/Cargo.toml crates/protogen/
+RUN mkdir -p src crates/core/benches crates/core/examples crates/service/benches crates/service/examples \
+ && for c in core files app service testkit; do mkdir -p crates/$c/src && touch crates/$c/src/lib.rs; done \
+ && mkdir -p crates/protogen/src && echo 'fn main() {}' > crates/protogen/src/main.rs \
  && echo 'fn main() {}' > src/main.rs \
- && touch crates/core/src/lib.rs crates/files/src/lib.rs crates/service/src/lib.rs \
  && for b in hpr estimate train; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \
+ && echo 'fn main() {}' > crates/core/examples/convention.rs \
  && echo 'fn main() {}' > crates/service/benches/service.rs \
- && cargo build --release --locked --bin facepose || true
+ && for e in instructions loadgen; do echo 'fn main() {}' > crates/service/examples/$e.rs; done \
+ && cargo build --release --locked --bin facepose
 COPY src ./src
 COPY crates ./crates
 COPY models ./models

@@ -11,8 +11,8 @@
 //! length in one byte or the usual varint, a landmark with nothing but its three fields. Anything
 //! else goes to prost's own functions, from the same place in the buffer, so what is accepted,
 //! what is refused and with which error are prost's. Encoding gives prost's bytes exactly.
-//! The tests hold both types to prost's derived code for the same `.proto` (`build.rs` writes it
-//! to `$OUT_DIR/reference/`), on random messages and on corrupted bytes.
+//! The tests hold both types to prost's derived code for the same `.proto` (`facepose-protogen` writes it
+//! to `generated/reference/`), on random messages and on corrupted bytes.
 //!
 //! A field added to `Face` or `Pose` in the `.proto` must be added here. The tests build the
 //! derived types field by field, so they stop compiling until it is.
@@ -387,7 +387,7 @@ mod tests {
     /// prost's derived code for the same `.proto`.
     #[allow(clippy::all, missing_docs, dead_code)]
     mod reference {
-        include!(concat!(env!("OUT_DIR"), "/reference/facepose.v1.rs"));
+        include!("generated/reference/facepose.v1.rs");
     }
 
     fn landmark(x: f64, y: f64, missing: bool) -> (Landmark, reference::Landmark) {
