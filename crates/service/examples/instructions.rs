@@ -9,7 +9,8 @@
 //! ```
 //!
 //! The face is the one of benches/estimate.rs: the default model's mean at yaw 25°, pitch -10°,
-//! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision.
+//! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision
+//! (or the body in the file given after CALLS, to compare parsers on the same text).
 
 use facepose_app::pose::{FaceSpec, estimate_face};
 use facepose_app::registry::load_models;
@@ -44,7 +45,11 @@ const ENTRIES: [&str; 10] = [
 
 fn main() {
     let usage = || {
-        eprintln!("usage: instructions <{}> CALLS", ENTRIES.join("|"));
+        eprintln!(
+            "usage: instructions <{}> CALLS [BODY_FILE]\n\
+             BODY_FILE: a /v1/pose body for parse-pose-body instead of the built-in one",
+            ENTRIES.join("|")
+        );
         std::process::exit(2)
     };
     let mut args = std::env::args().skip(1);
@@ -57,6 +62,7 @@ fn main() {
     if !ENTRIES.contains(&what.as_str()) {
         usage()
     }
+    let body_file = args.next();
     let (_, model) = default_model().expect("the embedded default model loads");
     let cam = WeakPerspective::new(
         EulerAngles::new(25.0, -10.0, 5.0).unwrap().to_rotation(),
@@ -78,6 +84,10 @@ fn main() {
         "method": "fit",
     })
     .to_string();
+    let body = match body_file {
+        Some(path) => std::fs::read_to_string(&path).expect("the body file is readable UTF-8"),
+        None => body,
+    };
     let set = load_models(None).expect("the default model set loads");
     let served = set.get(None).unwrap().clone();
     let request = parse_pose_request(body.as_bytes()).unwrap();
