@@ -85,7 +85,13 @@ pub async fn read_body_limited(
         let Ok(data) = frame.map_err(unreadable)?.into_data() else {
             continue; // trailers
         };
-        let seen = first.as_ref().map_or(0, Bytes::len) + rest.len() + data.len();
+        // Once a second chunk came, `rest` holds the first one too.
+        let before = if rest.is_empty() {
+            first.as_ref().map_or(0, Bytes::len)
+        } else {
+            rest.len()
+        };
+        let seen = before + data.len();
         if seen > limit {
             drain(body, seen as u64).await;
             return Err(too_large(None));
@@ -251,6 +257,42 @@ mod tests {
     use super::*;
     use crate::http::error::ErrorCode;
     use crate::http::wire::{BatchRequest, PoseRequest};
+
+    /// A body sent in `chunks` of the given sizes, with its length declared.
+    fn chunked(sizes: &[usize]) -> (HeaderMap, Body) {
+        let total: usize = sizes.iter().sum();
+        let mut headers = HeaderMap::new();
+        headers.insert(header::CONTENT_LENGTH, total.into());
+        let chunks: Vec<Result<Bytes, std::convert::Infallible>> = sizes
+            .iter()
+            .map(|&n| Ok(Bytes::from(vec![b' '; n])))
+            .collect();
+        (
+            headers,
+            Body::from_stream(futures_util::stream::iter(chunks)),
+        )
+    }
+
+    #[tokio::test]
+    async fn a_body_of_many_chunks_is_held_to_its_length_not_more() {
+        // A large first chunk was counted twice once a second one came: a body 100 bytes
+        // under the limit was refused.
+        for sizes in [&[600, 300][..], &[600, 200, 100], &[900], &[1, 1, 898]] {
+            let (headers, body) = chunked(sizes);
+            let bytes = read_body(&headers, body, 900).await.unwrap();
+            assert_eq!(bytes.len(), 900, "{sizes:?}");
+        }
+        let (headers, body) = chunked(&[600, 200]);
+        assert_eq!(read_body(&headers, body, 1000).await.unwrap().len(), 800);
+        let mut headers = HeaderMap::new();
+        headers.insert(header::TRANSFER_ENCODING, "chunked".parse().unwrap());
+        let chunks: Vec<Result<Bytes, std::convert::Infallible>> = vec![
+            Ok(Bytes::from(vec![b' '; 600])),
+            Ok(Bytes::from(vec![b' '; 301])),
+        ];
+        let body = Body::from_stream(futures_util::stream::iter(chunks));
+        assert!(read_body(&headers, body, 900).await.is_err());
+    }
 
     #[test]
     fn json_content_types_are_recognized() {
