@@ -1,6 +1,6 @@
 //! `facepose serve` as a process, for what only a process shows: start-up errors and their
 //! exit status, SIGTERM's drain (with streams open, with retraining jobs accepted), a drain cut
-//! short (exit 3), kill -9 while versions are written. Everything else about the service is
+//! short (exit 3), kill -9 while versions are written, the memory a hostile request costs. Everything else about the service is
 //! tested in-process (crates/service/tests).
 
 use std::path::PathBuf;
@@ -379,4 +379,117 @@ async fn sigterm_waits_for_the_accepted_retraining_jobs() {
             server.logs()
         );
     }
+}
+
+/// The high-water mark of a process's resident memory (VmHWM), bytes.
+fn peak_rss(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let kib: u64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .expect("VmHWM in /proc/PID/status");
+    kib * 1024
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_8_mib_grpc_message_of_empty_faces_costs_little_memory_and_time() {
+    use facepose_testkit::raw_grpc;
+    // 4,194,272 empty faces in 8 MiB, under the default --max-body: decoded whole, they took
+    // 950 MB and 3.9 s before the batch limit was checked.
+    let p = Process::start(BIN, &[]);
+    let channel = p.channel().await;
+    let mut c = p.grpc().await;
+    let ok = c
+        .estimate(proto::EstimateRequest {
+            face: Some(proto_face(&face68(10.0, 0.0, 0.0), "", "", "")),
+            model: String::new(),
+        })
+        .await;
+    assert!(ok.is_ok(), "{ok:?}");
+    let before = peak_rss(p.pid());
+    let started = Instant::now();
+    let s = raw_grpc::unary(
+        channel.clone(),
+        "EstimateBatch",
+        [0x0a, 0x00].repeat(4_194_272),
+    )
+    .await
+    .unwrap_err();
+    assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+    assert!(s.message().contains("4194272 faces"), "{s:?}");
+    let frame = [0x1a, 0x00].repeat(4_194_272);
+    let s = raw_grpc::first_answer(channel, "EstimateStream", vec![frame])
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+    let elapsed = started.elapsed();
+    let grown = peak_rss(p.pid()).saturating_sub(before);
+    assert!(
+        grown < 64 << 20,
+        "two 8 MiB messages raised the peak RSS by {} MiB",
+        grown >> 20
+    );
+    assert!(elapsed < Duration::from_secs(3), "{elapsed:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_8_mb_json_body_of_empty_faces_or_null_landmarks_costs_little_memory() {
+    // Parsed whole before the limits applied, 480,000 empty faces took 165 MB and 1.6 million
+    // null landmarks 70 MB.
+    let p = Process::start(BIN, &[]);
+    let c = client();
+    let faces = format!(
+        "{{\"faces\": [{}]}}",
+        vec!["{\"landmarks\":[]}"; 480_000].join(",")
+    );
+    let nulls = format!("{{\"landmarks\": [{}]}}", vec!["null"; 1_600_000].join(","));
+    // The same faces with a key spelled with an escape, which the one-pass reader leaves to
+    // serde.
+    let escaped = faces.replacen("\"landmarks\"", "\"l\\u0061ndmarks\"", 1);
+    let r = c
+        .post(p.url("/v1/pose"))
+        .json(&json!({"landmarks": face68(5.0, 0.0, 0.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    let before = peak_rss(p.pid());
+    for (path, body, expected, words) in [
+        (
+            "/v1/pose:batch",
+            &faces,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "480000 faces",
+        ),
+        (
+            "/v1/pose:batch",
+            &escaped,
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "480000 faces",
+        ),
+        (
+            "/v1/pose",
+            &nulls,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "more than 1024 landmarks",
+        ),
+    ] {
+        let r = c
+            .post(p.url(path))
+            .header("content-type", "application/json")
+            .body(body.clone())
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), expected, "{path}, {} bytes", body.len());
+        let text = r.text().await.unwrap();
+        assert!(text.contains(words), "{path}, {} bytes: {text}", body.len());
+    }
+    let grown = peak_rss(p.pid()).saturating_sub(before);
+    assert!(
+        grown < 64 << 20,
+        "three 8 MB bodies raised the peak RSS by {} MiB",
+        grown >> 20
+    );
 }

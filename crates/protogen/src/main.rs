@@ -1,7 +1,8 @@
 //! Regenerates `crates/service/src/proto/generated/` from `proto/facepose/v1/*.proto`:
 //!
 //! - `facepose.v1.rs`: tonic's server and client and prost's messages, except `Face` and `Pose`,
-//!   which the service codes by hand (`hand_coded.rs`);
+//!   which the service codes by hand (`hand_coded.rs`), over the service's codec
+//!   (`grpc/codec.rs`: prost's, with limits checked before decoding);
 //! - `reference/facepose.v1.rs`: prost's derived code for every message, those two included, for
 //!   the tests that hold the hand-coded pair to it;
 //! - `facepose_descriptor.bin`: the encoded file descriptor set, for gRPC server reflection;
@@ -38,6 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build_server(true)
         .extern_path(".facepose.v1.Face", "crate::proto::Face")
         .extern_path(".facepose.v1.Pose", "crate::proto::Pose")
+        .codec_path("crate::grpc::codec::FaceposeCodec")
         .out_dir(&out)
         .compile_fds(compiler.file_descriptor_set())?;
     tonic_prost_build::configure()

@@ -69,7 +69,7 @@ fn service(c: &mut Criterion) {
         let batch =
             json!({"faces": vec![json!({"landmarks": pts}); 100], "scheme": scheme}).to_string();
         c.bench_function(&format!("http/parse batch of 100/{name}"), |b| {
-            b.iter(|| parse_batch_request(black_box(batch.as_bytes())).unwrap())
+            b.iter(|| parse_batch_request(black_box(batch.as_bytes()), 1000).unwrap())
         });
         let face = proto::Face {
             landmarks: landmark_messages(&pts),

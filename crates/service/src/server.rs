@@ -21,7 +21,6 @@ use facepose_app::App;
 use facepose_app::jobs::Unfinished;
 use facepose_app::registry::RegistryError;
 use tokio::net::TcpListener;
-use tower::ServiceExt;
 use tracing::Instrument;
 
 use crate::config::{Config, ConfigError, LogFormat, ServeArgs};
@@ -177,10 +176,15 @@ pub fn routers(app: &Arc<App>) -> Result<Router, ServeError> {
         .into_axum_router()
         .route_service(
             &format!("/{}/{{*rest}}", grpc::health::POSE_SERVICE),
-            pose.map_request(|req: axum::http::Request<axum::body::Body>| {
-                req.map(tonic::body::Body::new)
-            })
-            .map_response(move |resp| grpc::error::remap_trailers_only(resp, max_body)),
+            tower::ServiceBuilder::new()
+                .layer(axum::middleware::from_fn_with_state(
+                    app.clone(),
+                    grpc::edge::edge,
+                ))
+                .map_request(|req: axum::http::Request<axum::body::Body>| {
+                    req.map(tonic::body::Body::new)
+                })
+                .service(pose),
         );
     let (api, _) = http::router(app);
     Ok(api

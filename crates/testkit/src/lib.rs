@@ -7,12 +7,14 @@
 //! - [`process`]: the real `facepose serve` binary as a child process, for what only a
 //!   process shows: signals, exit statuses, kill -9.
 //! - [`raw`]: HTTP/1.1 exchanges written by hand (bodies that stop, lie about their length).
+//! - [`raw_grpc`]: gRPC calls with message bytes written by hand (malformed, amplifying).
 //! - [`registry`]: models folders, shape sets to upload, and the admin calls of retraining.
 
 pub mod faces;
 pub mod logs;
 pub mod process;
 pub mod raw;
+pub mod raw_grpc;
 pub mod registry;
 pub mod server;
 

@@ -14,7 +14,7 @@ use serde::{Deserialize, Deserializer, Serialize};
 use crate::error::{Error, Result};
 use crate::geometry::rotation_rows;
 use crate::pose::{Estimate, Method};
-use crate::shape::Shape2;
+use crate::shape::{MAX_POINTS, Shape2};
 
 /// Landmarks as sent: `[[x, y] | null, ...]`. Deserializing names the first bad landmark by
 /// its index ("landmark 3 ...") and says what is expected; the point count is checked against
@@ -96,7 +96,8 @@ pub fn parse_landmarks(text: &str) -> std::result::Result<Landmarks, String> {
 }
 
 /// Parses the landmark list that starts at byte `start` of `b` (no leading whitespace) in one
-/// pass, numbers where they are found, and returns it with the offset just past its `]`. Strict
+/// pass, numbers where they are found, and returns it with the offset just past its `]`. A list
+/// longer than [`MAX_POINTS`] is refused when its first extra point is reached. Strict
 /// JSON: what it accepts is valid JSON text, so a caller may take it as such without another
 /// scan; errors as [`parse_landmarks`].
 pub fn parse_landmarks_at(
@@ -119,6 +120,11 @@ pub fn parse_landmarks_at(
     }
     loop {
         let k = points.len();
+        if k == MAX_POINTS {
+            return Err(format!(
+                "more than {MAX_POINTS} landmarks, the most a scheme may have"
+            ));
+        }
         points.push(c.point(k)?);
         c.ws();
         match c.peek() {
@@ -348,6 +354,22 @@ mod tests {
         let s = l.to_shape().unwrap();
         assert_eq!(s.len(), 4);
         assert_eq!(s.n_present(), 3);
+    }
+
+    #[test]
+    fn lists_longer_than_a_scheme_may_be_stop_at_the_first_extra_point() {
+        let list = |n: usize| format!("[{}]", vec!["null"; n].join(","));
+        assert_eq!(parse(&list(MAX_POINTS)).unwrap().len(), MAX_POINTS);
+        let e = parse(&list(MAX_POINTS + 1)).unwrap_err();
+        assert!(
+            e.contains(&format!("more than {MAX_POINTS} landmarks")),
+            "{e}"
+        );
+        // A million points are refused as fast as one more: the rest is never read, and may
+        // even be malformed.
+        let text = format!("[{}, oops", vec!["[1,2]"; 1_000_000].join(","));
+        let e = parse_landmarks(&text).unwrap_err();
+        assert!(e.contains("more than"), "{e}");
     }
 
     #[test]

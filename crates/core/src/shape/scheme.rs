@@ -35,6 +35,10 @@ impl Anchors {
     }
 }
 
+/// The most points a scheme may have. MediaPipe's face mesh, the densest scheme in use, has 478;
+/// the services refuse a face with more points than this before reading it.
+pub const MAX_POINTS: usize = 1024;
+
 /// A landmark scheme. Construct with [`Scheme::new`] (validated) or a built-in.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Scheme {
@@ -51,8 +55,9 @@ pub struct Scheme {
 }
 
 impl Scheme {
-    /// A validated scheme: unique non-empty names, anchors and contour in range, each anchor
-    /// non-empty, and `mirror` (if given) an involutive permutation.
+    /// A validated scheme: 3 to [`MAX_POINTS`] points with unique non-empty names, anchors and
+    /// contour in range, each anchor non-empty, and `mirror` (if given) an involutive
+    /// permutation.
     pub fn new(
         name: impl Into<String>,
         points: Vec<String>,
@@ -96,6 +101,11 @@ impl Scheme {
         }
         if n < 3 {
             return Err(self.invalid(format!("needs at least 3 points, has {n}")));
+        }
+        if n > MAX_POINTS {
+            return Err(self.invalid(format!(
+                "has {n} points, more than the {MAX_POINTS} a scheme may have"
+            )));
         }
         let mut names: Vec<&str> = self.points.iter().map(String::as_str).collect();
         names.sort_unstable();

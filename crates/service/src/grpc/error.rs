@@ -72,12 +72,13 @@ pub fn code_name(code: Code) -> &'static str {
 }
 
 /// A client-side stream error as the status to end the stream with: tonic's "message too
-/// large" (OUT_OF_RANGE) is RESOURCE_EXHAUSTED with the limit, like every other size limit.
+/// large" (OUT_OF_RANGE) is RESOURCE_EXHAUSTED with the limit, like every other size limit; the
+/// codec's statuses lose their mark (`codec::REFUSED_BEFORE_DECODING`).
 pub fn inbound_error(status: Status, max_body: usize) -> Status {
     if is_too_large(&status) {
         Status::resource_exhausted(too_large_message(max_body, status.message()))
     } else {
-        status
+        Status::new(status.code(), status.message())
     }
 }
 
@@ -88,24 +89,6 @@ pub fn is_too_large(status: &Status) -> bool {
 
 pub fn too_large_message(max_body: usize, detail: &str) -> String {
     format!("message over the limit of {max_body} bytes (--max-body); split it: {detail}")
-}
-
-/// The response of a unary call that failed before the handler (tonic's own checks), with an
-/// oversize message remapped like [`inbound_error`].
-pub fn remap_trailers_only(
-    mut resp: axum::http::Response<tonic::body::Body>,
-    max_body: usize,
-) -> axum::http::Response<tonic::body::Body> {
-    if let Some(status) = Status::from_header_map(resp.headers())
-        && is_too_large(&status)
-    {
-        let new = Status::resource_exhausted(too_large_message(max_body, status.message()));
-        let headers = resp.headers_mut();
-        headers.remove("grpc-status");
-        headers.remove("grpc-message");
-        let _ = new.add_header(headers);
-    }
-    resp
 }
 
 #[cfg(test)]

@@ -7,7 +7,9 @@
 //! drain signal, and end with UNAVAILABLE when the server shuts down. [`health`] is the
 //! standard health service, [`retrain`] turns a `Retrain` stream into an upload.
 
+pub mod codec;
 pub mod convert;
+pub mod edge;
 pub mod error;
 pub mod health;
 pub mod retrain;

@@ -19,7 +19,7 @@ use facepose_app::{App, Limits};
 use super::body::{json_bytes, parse_json, read_body, require_json, to_json};
 use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
-use super::request_json::{read_batch_request, read_pose_request};
+use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
 use super::wire::{
     BatchError, BatchPose, BatchRequest, BatchResponse, BatchResult, PoseRequest, PoseResponse,
 };
@@ -34,9 +34,24 @@ pub fn parse_pose_request(bytes: &[u8]) -> Result<PoseRequest, HttpError> {
     read_pose_request(bytes).map_or_else(|| parse_json(bytes), Ok)
 }
 
-/// [`parse_pose_request`] for `POST /v1/pose:batch`.
-pub fn parse_batch_request(bytes: &[u8]) -> Result<BatchRequest, HttpError> {
-    read_batch_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+/// [`parse_pose_request`] for `POST /v1/pose:batch`, with at most `max_batch` faces: the limit
+/// is checked before the faces are built (an empty face is 17 bytes of JSON and about 150 in
+/// memory), by the one-pass reader as it goes or by counting them in place before serde.
+pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchRequest, HttpError> {
+    if let Some(req) = read_batch_request(bytes, max_batch) {
+        return Ok(req);
+    }
+    if bytes.len() >= INLINE_BODY {
+        let faces = count_batch_faces(bytes);
+        if faces > max_batch {
+            return Err(ServiceError::BatchTooLarge {
+                faces,
+                limit: max_batch,
+            }
+            .into());
+        }
+    }
+    parse_json(bytes)
 }
 
 /// Estimate the head pose of one face.
@@ -132,7 +147,7 @@ pub fn answer_batch(
     deadline: Option<Instant>,
     metrics: &Metrics,
 ) -> Result<Vec<u8>, HttpError> {
-    let req = parse_batch_request(&bytes)?;
+    let req = parse_batch_request(&bytes, limits.max_batch)?;
     drop(bytes);
     if req.faces.len() > limits.max_batch {
         return Err(ServiceError::BatchTooLarge {

@@ -16,16 +16,25 @@ use facepose_core::record::{Landmarks, parse_landmarks_at, skip_ws};
 
 /// Reads a `POST /v1/pose` body, or `None` (see the module doc).
 pub fn read_pose_request(body: &[u8]) -> Option<PoseRequest> {
-    let mut r = Reader { b: body, i: 0 };
+    let mut r = Reader {
+        b: body,
+        i: 0,
+        max_faces: 0,
+    };
     r.ws();
     let req = r.pose_request()?;
     r.ws();
     (r.i == body.len()).then_some(req)
 }
 
-/// Reads a `POST /v1/pose:batch` body, or `None` (see the module doc).
-pub fn read_batch_request(body: &[u8]) -> Option<BatchRequest> {
-    let mut r = Reader { b: body, i: 0 };
+/// Reads a `POST /v1/pose:batch` body of at most `max_faces` faces, or `None` (see the module
+/// doc; one face more is a surprise too, found without reading the rest).
+pub fn read_batch_request(body: &[u8], max_faces: usize) -> Option<BatchRequest> {
+    let mut r = Reader {
+        b: body,
+        i: 0,
+        max_faces,
+    };
     r.ws();
     let req = r.batch_request()?;
     r.ws();
@@ -66,6 +75,8 @@ macro_rules! members {
 struct Reader<'a> {
     b: &'a [u8],
     i: usize,
+    /// The most faces a batch may have.
+    max_faces: usize,
 }
 
 /// Marks member `bit` of an object as seen; `None` if it was already (serde refuses repeats).
@@ -167,6 +178,9 @@ impl<'a> Reader<'a> {
             return Some(faces);
         }
         loop {
+            if faces.len() == self.max_faces {
+                return None;
+            }
             faces.push(self.batch_face()?);
             self.ws();
             if self.eat(b',').is_some() {
@@ -188,6 +202,65 @@ impl<'a> Reader<'a> {
         );
         Some(req)
     }
+}
+
+/// The number of elements of the `faces` array of a batch body, counted without keeping them
+/// (serde skips each one in place), up to where the body stops being valid JSON. For a body the
+/// one-pass reader left to serde: so that its batch limit is checked before serde builds the
+/// faces.
+pub fn count_batch_faces(body: &[u8]) -> usize {
+    use serde::de::{DeserializeSeed, IgnoredAny, MapAccess, SeqAccess, Visitor};
+    use std::borrow::Cow;
+    use std::cell::Cell;
+
+    struct Body<'c>(&'c Cell<usize>);
+    struct Faces<'c>(&'c Cell<usize>);
+
+    impl<'de> DeserializeSeed<'de> for Body<'_> {
+        type Value = ();
+        fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            d.deserialize_map(self)
+        }
+    }
+    impl<'de> Visitor<'de> for Body<'_> {
+        type Value = ();
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a batch body")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
+            while let Some(key) = map.next_key::<Cow<'de, str>>()? {
+                if key == "faces" {
+                    map.next_value_seed(Faces(self.0))?;
+                } else {
+                    map.next_value::<IgnoredAny>()?;
+                }
+            }
+            Ok(())
+        }
+    }
+    impl<'de> DeserializeSeed<'de> for Faces<'_> {
+        type Value = ();
+        fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            d.deserialize_seq(self)
+        }
+    }
+    impl<'de> Visitor<'de> for Faces<'_> {
+        type Value = ();
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("an array of faces")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+            while seq.next_element::<IgnoredAny>()?.is_some() {
+                self.0.set(self.0.get() + 1);
+            }
+            Ok(())
+        }
+    }
+
+    let count = Cell::new(0);
+    let mut de = serde_json::Deserializer::from_slice(body);
+    let _ = Body(&count).deserialize(&mut de);
+    count.get()
 }
 
 #[cfg(test)]
@@ -344,7 +417,7 @@ mod tests {
 
         #[test]
         fn batch_requests_read_as_serde_reads_them(body in batch_body()) {
-            agrees_with_serde(body.as_bytes(), read_batch_request)?;
+            agrees_with_serde(body.as_bytes(), |b| read_batch_request(b, usize::MAX))?;
         }
 
         #[test]
@@ -358,7 +431,7 @@ mod tests {
             let at = at.index(b.len());
             if cut { b.truncate(at) } else { b[at] = byte }
             agrees_with_serde(&b, read_pose_request)?;
-            agrees_with_serde(&b, read_batch_request)?;
+            agrees_with_serde(&b, |b| read_batch_request(b, usize::MAX))?;
         }
     }
 
@@ -372,7 +445,9 @@ mod tests {
         );
         assert_eq!(req.scheme.as_deref(), Some("five"));
         let batch = br#"{"scheme": "five", "faces": [{"landmarks": []}, {"landmarks": [null], "id": "a"}]}"#;
-        assert_eq!(read_batch_request(batch).unwrap().faces.len(), 2);
+        assert_eq!(read_batch_request(batch, 2).unwrap().faces.len(), 2);
+        assert!(read_batch_request(batch, 1).is_none());
+        assert_eq!(count_batch_faces(batch), 2);
     }
 
     #[test]

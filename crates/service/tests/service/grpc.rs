@@ -580,3 +580,98 @@ async fn health_reflection_and_unknown_methods() {
         .expect_err("an error status");
     assert_eq!(err.code(), Code::Unimplemented);
 }
+
+/// The count of `facepose_grpc_requests_total` for one RPC and code, 0 when absent.
+fn grpc_count(metrics: &str, rpc: &str, code: &str) -> u64 {
+    metrics
+        .lines()
+        .filter(|l| l.starts_with("facepose_grpc_requests_total{"))
+        .filter(|l| {
+            l.contains(&format!("rpc=\"{rpc}\"")) && l.contains(&format!("code=\"{code}\""))
+        })
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<u64>().ok())
+        .sum()
+}
+
+#[tokio::test]
+async fn malformed_protobuf_is_invalid_argument_and_counted() {
+    use facepose_testkit::raw_grpc;
+    let server = Server::start(&[]);
+    let c = facepose_testkit::registry::client();
+    // A face whose length runs past the message's end (prost: "buffer underflow").
+    let broken = vec![0x0a, 0xff, 0xff, 0xff, 0xff, 0x0f];
+    for rpc in ["Estimate", "EstimateBatch"] {
+        let s = raw_grpc::unary(server.channel().await, rpc, broken.clone())
+            .await
+            .unwrap_err();
+        assert_eq!(s.code(), Code::InvalidArgument, "{rpc}: {s:?}");
+        assert!(s.message().contains("not valid protobuf"), "{rpc}: {s:?}");
+        assert!(s.metadata().get("x-facepose-refused-by-codec").is_none());
+    }
+    let s = raw_grpc::first_answer(server.channel().await, "EstimateStream", vec![broken])
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+    let metrics = facepose_testkit::registry::metrics_text(&c, &server).await;
+    assert_eq!(
+        grpc_count(&metrics, "Estimate", "INVALID_ARGUMENT"),
+        1,
+        "{metrics}"
+    );
+    assert_eq!(grpc_count(&metrics, "EstimateBatch", "INVALID_ARGUMENT"), 1);
+    assert_eq!(
+        grpc_count(&metrics, "EstimateStream", "INVALID_ARGUMENT"),
+        1
+    );
+}
+
+#[tokio::test]
+async fn messages_over_the_body_limit_are_counted() {
+    use facepose_testkit::raw_grpc;
+    let server = Server::start(&["--max-body", "64KiB"]);
+    let c = facepose_testkit::registry::client();
+    let s = raw_grpc::unary(server.channel().await, "Estimate", vec![0; 70 * 1024])
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+    assert!(s.message().contains("--max-body"), "{s:?}");
+    let metrics = facepose_testkit::registry::metrics_text(&c, &server).await;
+    assert_eq!(
+        grpc_count(&metrics, "Estimate", "RESOURCE_EXHAUSTED"),
+        1,
+        "{metrics}"
+    );
+}
+
+#[tokio::test]
+async fn batches_over_the_limit_are_refused_before_decoding_in_calls_and_streams() {
+    use facepose_testkit::raw_grpc;
+    let server = Server::start(&["--max-batch", "100"]);
+    // 20,000 empty faces: 40 KB sent, about 4 MB decoded.
+    let batch = [0x0a, 0x00].repeat(20_000);
+    let s = raw_grpc::unary(server.channel().await, "EstimateBatch", batch)
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+    assert!(s.message().contains("20000 faces"), "{s:?}");
+    assert!(s.message().contains("--max-batch"), "{s:?}");
+    let frame = [0x1a, 0x00].repeat(20_000);
+    let s = raw_grpc::first_answer(server.channel().await, "EstimateStream", vec![frame])
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+    assert!(s.message().contains("20000 faces"), "{s:?}");
+    // A face of more points than any scheme has, in the packed form.
+    let face = proto::Face {
+        xy: vec![1.0; 2 * 1025],
+        ..Default::default()
+    };
+    let s = server
+        .grpc()
+        .await
+        .estimate(request(face, ""))
+        .await
+        .unwrap_err();
+    assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+    assert!(s.message().contains("1024"), "{s:?}");
+}

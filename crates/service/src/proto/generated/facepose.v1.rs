@@ -576,7 +576,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/Estimate",
             );
@@ -601,7 +601,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/EstimateBatch",
             );
@@ -630,7 +630,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/EstimateStream",
             );
@@ -655,7 +655,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/ListModels",
             );
@@ -677,7 +677,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/GetModel",
             );
@@ -702,7 +702,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/Retrain",
             );
@@ -724,7 +724,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/GetJob",
             );
@@ -748,7 +748,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/CancelJob",
             );
@@ -774,7 +774,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/ListVersions",
             );
@@ -797,7 +797,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/ActivateVersion",
             );
@@ -822,7 +822,7 @@ pub mod pose_service_client {
                         format!("Service was not ready: {}", e.into()),
                     )
                 })?;
-            let codec = tonic_prost::ProstCodec::default();
+            let codec = crate::grpc::codec::FaceposeCodec::default();
             let path = http::uri::PathAndQuery::from_static(
                 "/facepose.v1.PoseService/DeleteVersion",
             );
@@ -1044,7 +1044,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = EstimateSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1089,7 +1089,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = EstimateBatchSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1133,7 +1133,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = EstimateStreamSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1178,7 +1178,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = ListModelsSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1223,7 +1223,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = GetModelSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1270,7 +1270,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = RetrainSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1315,7 +1315,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = GetJobSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1360,7 +1360,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = CancelJobSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1405,7 +1405,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = ListVersionsSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1450,7 +1450,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = ActivateVersionSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
@@ -1495,7 +1495,7 @@ pub mod pose_service_server {
                     let inner = self.inner.clone();
                     let fut = async move {
                         let method = DeleteVersionSvc(inner);
-                        let codec = tonic_prost::ProstCodec::default();
+                        let codec = crate::grpc::codec::FaceposeCodec::default();
                         let mut grpc = tonic::server::Grpc::new(codec)
                             .apply_compression_config(
                                 accept_compression_encodings,
