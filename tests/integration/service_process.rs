@@ -472,7 +472,7 @@ async fn an_8_mb_json_body_of_empty_faces_or_null_landmarks_costs_little_memory(
             "/v1/pose",
             &nulls,
             StatusCode::UNPROCESSABLE_ENTITY,
-            "more than 1024 landmarks",
+            "more than 1000 landmarks",
         ),
     ] {
         let r = c

@@ -27,9 +27,8 @@ pub use options::{RawGrid, RawOptions, UploadOptions, check_options};
 /// The longest `notes` recorded in a version's provenance, bytes.
 pub const MAX_NOTES: usize = 4096;
 
-/// The most points of an uploaded scheme definition (training time grows with the square of
-/// the points; the largest built-in scheme has 68).
-pub const MAX_SCHEME_POINTS: usize = 1000;
+/// The most points of an uploaded scheme definition: a scheme's limit.
+pub use facepose_core::shape::MAX_POINTS as MAX_SCHEME_POINTS;
 
 /// The scheme of an upload: a built-in name or a definition.
 #[derive(Debug, Clone)]

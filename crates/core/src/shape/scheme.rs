@@ -35,9 +35,10 @@ impl Anchors {
     }
 }
 
-/// The most points a scheme may have. MediaPipe's face mesh, the densest scheme in use, has 478;
-/// the services refuse a face with more points than this before reading it.
-pub const MAX_POINTS: usize = 1024;
+/// The most points a scheme may have (training time grows with the square of the points).
+/// MediaPipe's face mesh, the densest scheme in use, has 478; the services refuse a face with
+/// more points than this before reading it.
+pub const MAX_POINTS: usize = 1000;
 
 /// A landmark scheme. Construct with [`Scheme::new`] (validated) or a built-in.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
