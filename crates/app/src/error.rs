@@ -19,6 +19,26 @@
 
 use std::time::Duration;
 
+/// The longest name (model, scheme, method, landmark style) a request may give: every valid
+/// one is shorter (model names have at most 64 characters).
+pub const MAX_NAME: usize = 64;
+
+/// The longest error message sent to a client, bytes: what a message echoes of a request stays
+/// within it, so that a gRPC status fits in a header block any client accepts.
+pub const MAX_MESSAGE: usize = 1024;
+
+/// `message` cut to [`MAX_MESSAGE`] bytes (at a character boundary), saying so.
+pub fn bounded_message(message: String) -> String {
+    if message.len() <= MAX_MESSAGE {
+        return message;
+    }
+    let mut end = MAX_MESSAGE - 40;
+    while !message.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}... ({} bytes cut)", &message[..end], message.len() - end)
+}
+
 use facepose_core::model::validate::ValidationReport;
 
 use crate::jobs::{JobStage, JobState};
@@ -225,6 +245,18 @@ impl ServiceError {
         ServiceError::Invalid(message.into())
     }
 
+    /// A name a client sent (`what`: "model", "scheme", "method", "landmark style") that is
+    /// longer than any valid one: refused without echoing it.
+    pub fn check_name_length(what: &str, name: &str) -> Result<(), ServiceError> {
+        if name.len() <= MAX_NAME {
+            return Ok(());
+        }
+        Err(ServiceError::Invalid(format!(
+            "{what} names have at most {MAX_NAME} characters; this one has {}",
+            name.len()
+        )))
+    }
+
     /// A bug or a broken volume: 500 / INTERNAL.
     pub fn internal(message: impl Into<String>) -> Self {
         ServiceError::Internal(message.into())
@@ -273,6 +305,33 @@ impl From<facepose_core::Error> for ServiceError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn messages_are_cut_at_a_character_boundary_and_say_so() {
+        assert_eq!(bounded_message("short".into()), "short");
+        let exact = "x".repeat(MAX_MESSAGE);
+        assert_eq!(bounded_message(exact.clone()), exact);
+        // Two-byte characters around the cut.
+        let long = format!("unknown scheme {:?}", "é".repeat(20_000));
+        let cut = bounded_message(long.clone());
+        assert!(cut.len() <= MAX_MESSAGE, "{}", cut.len());
+        assert!(cut.starts_with("unknown scheme \"éé"));
+        assert!(cut.ends_with(&format!(
+            "({} bytes cut)",
+            long.len() - cut.find("...").unwrap()
+        )));
+    }
+
+    #[test]
+    fn names_longer_than_any_valid_one_are_refused_without_an_echo() {
+        assert!(ServiceError::check_name_length("model", &"m".repeat(MAX_NAME)).is_ok());
+        let e = ServiceError::check_name_length("scheme", &"s".repeat(20_000)).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+        assert_eq!(
+            e.to_string(),
+            "scheme names have at most 64 characters; this one has 20000"
+        );
+    }
 
     #[test]
     fn core_errors_are_invalid_arguments_with_the_core_message() {

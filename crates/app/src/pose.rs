@@ -37,6 +37,13 @@ fn given(s: Option<&str>) -> Option<&str> {
 
 /// Estimates one face with `model`. Every failure is a client error with a message.
 pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePose, ServiceError> {
+    for (what, name) in [
+        ("scheme", face.scheme),
+        ("method", face.method),
+        ("landmark style", face.style),
+    ] {
+        ServiceError::check_name_length(what, name.unwrap_or_default())?;
+    }
     let scheme = given(face.scheme).unwrap_or_else(|| model.scheme());
     // The scheme first: the landmark count is checked against it.
     model.model.subset(scheme)?;

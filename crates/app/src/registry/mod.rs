@@ -166,6 +166,7 @@ impl ModelSet {
     /// The model named `name`, or the default one for `None` or an empty name.
     pub fn get(&self, name: Option<&str>) -> Result<&Arc<ServedModel>, ServiceError> {
         let name = name.filter(|n| !n.is_empty()).unwrap_or(&self.default);
+        ServiceError::check_name_length("model", name)?;
         self.models
             .get(name)
             .ok_or_else(|| ServiceError::UnknownModel {

@@ -2,7 +2,9 @@
 //! class and a message in gRPC's words (where a message points the client somewhere, it names
 //! an RPC or metadata, not an HTTP route), and tonic's own size errors mapped like the rest.
 
-use facepose_app::error::{ErrorKind, NotCancellable, ServiceError, Unauthenticated};
+use facepose_app::error::{
+    ErrorKind, NotCancellable, ServiceError, Unauthenticated, bounded_message,
+};
 use tonic::{Code, Status};
 
 /// The code of an error class.
@@ -20,8 +22,12 @@ pub fn code(kind: ErrorKind) -> Code {
     }
 }
 
-/// An application error in gRPC's words.
+/// An application error in gRPC's words, within [`MAX_MESSAGE`](facepose_app::error::MAX_MESSAGE).
 pub fn message(e: &ServiceError) -> String {
+    bounded_message(words(e))
+}
+
+fn words(e: &ServiceError) -> String {
     match e {
         ServiceError::UnknownJob { .. } => {
             format!("{e}; ListVersions lists the versions every replica sees")
@@ -78,7 +84,7 @@ pub fn inbound_error(status: Status, max_body: usize) -> Status {
     if is_too_large(&status) {
         Status::resource_exhausted(too_large_message(max_body, status.message()))
     } else {
-        Status::new(status.code(), status.message())
+        Status::new(status.code(), bounded_message(status.message().to_string()))
     }
 }
 

@@ -136,15 +136,16 @@ impl HttpError {
         }
     }
 
-    /// The message, in HTTP's words.
+    /// The message, in HTTP's words, within
+    /// [`MAX_MESSAGE`](facepose_app::error::MAX_MESSAGE).
     pub fn message(&self) -> String {
-        match self {
+        facepose_app::error::bounded_message(match self {
             HttpError::Service(e) => message(e),
             HttpError::MalformedJson(m)
             | HttpError::UnsupportedMediaType(m)
             | HttpError::NotFound(m)
             | HttpError::MethodNotAllowed(m) => m.clone(),
-        }
+        })
     }
 
     /// The error as sent: code, message and details.

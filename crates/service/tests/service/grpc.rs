@@ -675,3 +675,34 @@ async fn batches_over_the_limit_are_refused_before_decoding_in_calls_and_streams
     assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
     assert!(s.message().contains("more than 1000 landmarks"), "{s:?}");
 }
+
+#[tokio::test]
+async fn long_names_are_invalid_arguments_with_short_messages() {
+    // A 20,000-character name made a 17.5 KB grpc-message, which clients refuse ("Stream
+    // removed", RESOURCE_EXHAUSTED) instead of reading the status.
+    let server = Server::start(&[]);
+    let mut c = server.grpc().await;
+    let long = "x".repeat(20_000);
+    let face = || proto_face(&face68(10.0, 0.0, 0.0), "", "", "");
+    let mut requests = vec![request(face(), &long)];
+    for set in [
+        (|f: &mut proto::Face, s: &str| f.scheme = s.into()) as fn(&mut proto::Face, &str),
+        |f, s| f.method = s.into(),
+        |f, s| f.landmark_style = s.into(),
+    ] {
+        let mut f = face();
+        set(&mut f, &long);
+        requests.push(request(f, ""));
+    }
+    for r in requests {
+        let s = c.estimate(r).await.unwrap_err();
+        assert_eq!(s.code(), Code::InvalidArgument, "{s:?}");
+        assert!(s.message().contains("at most 64 characters"), "{s:?}");
+        assert!(s.message().len() < 200);
+    }
+    let s = c
+        .get_model(proto::GetModelRequest { name: long.clone() })
+        .await
+        .unwrap_err();
+    assert!(s.message().len() <= 1024, "{} bytes", s.message().len());
+}

@@ -554,3 +554,47 @@ async fn bad_input_says_what_to_fix() {
     assert_eq!(s, StatusCode::OK);
     assert_pose(&v, (10.0, 0.0, 0.0), 0.5);
 }
+
+#[tokio::test]
+async fn long_names_are_refused_and_errors_never_echo_more_than_a_kilobyte() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let long = "x".repeat(20_000);
+    let face = face68(10.0, 0.0, 0.0);
+    for (field, status) in [
+        ("model", StatusCode::UNPROCESSABLE_ENTITY),
+        ("scheme", StatusCode::UNPROCESSABLE_ENTITY),
+        ("method", StatusCode::UNPROCESSABLE_ENTITY),
+        ("landmark_style", StatusCode::UNPROCESSABLE_ENTITY),
+    ] {
+        let mut body = json!({"landmarks": face});
+        body[field] = json!(long);
+        let (got, v) = post(&c, &server.url("/v1/pose"), &body).await;
+        assert_eq!(got, status, "{field}: {v}");
+        let message = v["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains("at most 64 characters"),
+            "{field}: {message}"
+        );
+        assert!(message.len() < 200, "{field}: {} bytes", message.len());
+        // In a batch, the same as a per-face error.
+        if field != "model" {
+            let mut one = json!({"landmarks": face});
+            one[field] = json!(long);
+            let (got, v) = post(&c, &server.url("/v1/pose:batch"), &json!({"faces": [one]})).await;
+            assert_eq!(got, StatusCode::OK, "{field}: {v}");
+            let message = v["results"][0]["error"]["message"].as_str().unwrap();
+            assert!(message.len() < 200, "{field}: {message}");
+        }
+    }
+    // An unknown field's name is echoed by serde: within the bound, cut and saying so.
+    let mut body = json!({"landmarks": face});
+    body[&long] = json!(1);
+    let (got, v) = post(&c, &server.url("/v1/pose"), &body).await;
+    assert_eq!(got, StatusCode::UNPROCESSABLE_ENTITY, "{v}");
+    let message = v["error"]["message"].as_str().unwrap();
+    assert!(
+        message.len() <= 1024 && message.ends_with("bytes cut)"),
+        "{message}"
+    );
+}
