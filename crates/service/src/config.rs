@@ -51,6 +51,24 @@ pub struct ServeArgs {
     /// Most open EstimateStream streams; above it new streams get UNAVAILABLE.
     #[arg(long, env = "FACEPOSE_MAX_STREAMS", default_value_t = 1024)]
     pub max_streams: usize,
+    /// Most open connections (HTTP/1 and HTTP/2); past it a connection is answered 503 and
+    /// closed. Default: the open-file limit (ulimit -n) less 128 for the models folder and the
+    /// jobs, at most 10000.
+    #[arg(long, env = "FACEPOSE_MAX_CONNECTIONS")]
+    pub max_connections: Option<usize>,
+    /// HTTP/1: the time a client has to send a request's headers, from the connection's start
+    /// or the end of its previous request; slower or idle HTTP/1 connections are closed. Set
+    /// a load balancer's idle timeout for its kept-alive connections below it. E.g. 30s.
+    #[arg(long, env = "FACEPOSE_HEADER_TIMEOUT", default_value = "30s")]
+    pub header_timeout: String,
+    /// HTTP/2 (gRPC): a connection with no call or stream in progress this long is closed
+    /// (GOAWAY), e.g. 120s.
+    #[arg(long, env = "FACEPOSE_IDLE_TIMEOUT", default_value = "120s")]
+    pub idle_timeout: String,
+    /// HTTP/2: the interval of keep-alive pings; a peer that does not answer one within the
+    /// same time is dropped with its streams. Quiet streams stay open. E.g. 20s.
+    #[arg(long, env = "FACEPOSE_KEEPALIVE", default_value = "20s")]
+    pub keepalive: String,
     /// On SIGTERM/SIGINT: how long in-flight requests may take to finish before the process
     /// exits anyway, e.g. 10s.
     #[arg(long, env = "FACEPOSE_DRAIN_TIMEOUT", default_value = "10s")]
@@ -101,6 +119,7 @@ pub struct Config {
     pub models: Option<PathBuf>,
     pub limits: Limits,
     pub drain_timeout: Duration,
+    pub connections: crate::connections::ConnectionLimits,
     pub workers: usize,
     pub log_format: LogFormat,
     pub log: String,
@@ -149,7 +168,56 @@ fn bad(flag: &str, reason: impl Into<String>) -> ConfigError {
     }
 }
 
+/// The default `--max-connections` when the open-file limit is unknown or unlimited.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 10_000;
+
+/// File descriptors kept back from `--max-connections`'s default: the models folder's files,
+/// the jobs' records, the listener, logs.
+const RESERVED_FILES: usize = 128;
+
+/// The soft limit on open files (`ulimit -n`), if there is one.
+fn open_file_limit() -> Option<usize> {
+    let mut limit = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes one rlimit through the valid pointer it is given.
+    let ok = unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0;
+    (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(limit.rlim_cur as usize)
+}
+
 impl ServeArgs {
+    fn connection_limits(&self) -> Result<crate::connections::ConnectionLimits, ConfigError> {
+        let duration = |flag: &str, text: &str| {
+            let d = parse_duration(text).map_err(|r| bad(flag, r))?;
+            if d < Duration::from_millis(100) {
+                return Err(bad(flag, "must be at least 100ms"));
+            }
+            Ok(d)
+        };
+        let max_connections = match self.max_connections {
+            Some(n) if n > MAX_COUNT => {
+                return Err(bad(
+                    "max-connections",
+                    format!("must be at most {MAX_COUNT}, got {n}"),
+                ));
+            }
+            Some(0) => return Err(bad("max-connections", "must be at least 1")),
+            Some(n) => n,
+            None => open_file_limit().map_or(DEFAULT_MAX_CONNECTIONS, |files| {
+                files
+                    .saturating_sub(RESERVED_FILES)
+                    .clamp(1, DEFAULT_MAX_CONNECTIONS)
+            }),
+        };
+        Ok(crate::connections::ConnectionLimits {
+            max_connections,
+            header_timeout: duration("header-timeout", &self.header_timeout)?,
+            idle_timeout: duration("idle-timeout", &self.idle_timeout)?,
+            keepalive: duration("keepalive", &self.keepalive)?,
+        })
+    }
+
     /// Checks every value and returns the configuration.
     pub fn validate(&self) -> Result<Config, ConfigError> {
         let addr = self.addr.parse().map_err(|e| {
@@ -212,6 +280,7 @@ impl ServeArgs {
         if limits.request_timeout.is_zero() {
             return Err(bad("request-timeout", "must be positive"));
         }
+        let connections = self.connection_limits()?;
         let workers = match self.workers {
             Some(w) => positive("workers", w)?,
             None => std::thread::available_parallelism().map_or(2, |n| n.get()),
@@ -224,6 +293,7 @@ impl ServeArgs {
             limits,
             drain_timeout: parse_duration(&self.drain_timeout)
                 .map_err(|r| bad("drain-timeout", r))?,
+            connections,
             workers,
             log_format: self.log_format,
             log: self.log.clone(),

@@ -5,6 +5,7 @@
 //! listener and drains; [`config`] holds the flags.
 
 pub mod config;
+pub mod connections;
 pub mod grpc;
 pub mod http;
 pub mod proto;

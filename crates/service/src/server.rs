@@ -16,7 +16,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use axum::Router;
-use axum::serve::ListenerExt;
 use facepose_app::App;
 use facepose_app::jobs::Unfinished;
 use facepose_app::registry::RegistryError;
@@ -210,13 +209,11 @@ async fn serve_app(
         %addr,
         startup_ms = started.elapsed().as_millis() as u64,
         workers = cfg.workers,
+        max_connections = cfg.connections.max_connections,
         "listening (HTTP and gRPC)"
     );
-    let listener = listener.tap_io(|tcp| {
-        let _ = tcp.set_nodelay(true);
-    });
     let drain_app = app.clone();
-    let server = axum::serve(listener, router).with_graceful_shutdown(async move {
+    let server = crate::connections::serve(listener, router, cfg.connections, async move {
         shutdown.await;
         tracing::info!("draining: not ready, no new connections, streams told to end");
         drain_app.lifecycle.begin_drain();
@@ -229,7 +226,7 @@ async fn serve_app(
     let done = connections_done.clone();
     let jobs = app.jobs.clone();
     let finish = async move {
-        server.into_future().await?;
+        server.await;
         done.store(true, Ordering::Release);
         let left = jobs.unfinished();
         if !left.is_empty() {

@@ -83,3 +83,155 @@ async fn overload_and_timeouts_are_refused_not_collapsed() {
         .unwrap();
     assert_eq!(r.status(), reqwest::StatusCode::OK);
 }
+
+/// Reads from `s` until the server closes it or `limit` passes: (bytes read, closed in time).
+fn read_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (Vec<u8>, bool) {
+    use std::io::Read;
+    let deadline = Instant::now() + limit;
+    let mut got = Vec::new();
+    let mut buf = [0u8; 4096];
+    while Instant::now() < deadline {
+        s.set_read_timeout(Some(
+            deadline
+                .saturating_duration_since(Instant::now())
+                .max(Duration::from_millis(1)),
+        ))
+        .unwrap();
+        match s.read(&mut buf) {
+            Ok(0) => return (got, true),
+            Ok(n) => got.extend_from_slice(&buf[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return (got, true),
+            Err(_) => break,
+        }
+    }
+    (got, false)
+}
+
+#[tokio::test]
+async fn slow_headers_and_idle_http1_connections_are_closed_after_the_header_timeout() {
+    use std::io::Write;
+    let server = Server::start(&["--header-timeout", "400ms"]);
+    // Headers that never end (slowloris).
+    let mut slow = std::net::TcpStream::connect(server.addr).unwrap();
+    slow.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nX-Slow: ")
+        .unwrap();
+    let t = Instant::now();
+    let (_, closed) = read_until_closed(&mut slow, Duration::from_secs(3));
+    assert!(
+        closed,
+        "a connection whose headers never end stayed open for 3 s"
+    );
+    assert!(
+        t.elapsed() >= Duration::from_millis(300),
+        "{:?}",
+        t.elapsed()
+    );
+    // A kept-alive connection after its request.
+    let mut idle = std::net::TcpStream::connect(server.addr).unwrap();
+    idle.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .unwrap();
+    let (answer, closed) = read_until_closed(&mut idle, Duration::from_secs(3));
+    assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
+    assert!(closed, "an idle HTTP/1 connection stayed open for 3 s");
+}
+
+/// Plays a silent HTTP/2 client on `s` until the server closes it or `limit` passes: whether a
+/// GOAWAY came, and whether the connection was closed in time.
+fn answer_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (bool, bool) {
+    use std::io::{Read, Write};
+    let deadline = Instant::now() + limit;
+    let mut pending = Vec::new();
+    let mut buf = [0u8; 4096];
+    let mut goaway = false;
+    while Instant::now() < deadline {
+        s.set_read_timeout(Some(
+            deadline
+                .saturating_duration_since(Instant::now())
+                .max(Duration::from_millis(1)),
+        ))
+        .unwrap();
+        match s.read(&mut buf) {
+            Ok(0) => return (goaway, true),
+            Ok(n) => pending.extend_from_slice(&buf[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return (goaway, true),
+            Err(_) => break,
+        }
+        while pending.len() >= 9 {
+            let len = (usize::from(pending[0]) << 16)
+                | (usize::from(pending[1]) << 8)
+                | usize::from(pending[2]);
+            if pending.len() < 9 + len {
+                break;
+            }
+            let (kind, flags) = (pending[3], pending[4]);
+            let payload = pending[9..9 + len].to_vec();
+            pending.drain(..9 + len);
+            match (kind, flags & 1) {
+                (4, 0) => s.write_all(&[0, 0, 0, 4, 1, 0, 0, 0, 0]).unwrap(),
+                (6, 0) => {
+                    let mut ack = vec![0, 0, 8, 6, 1, 0, 0, 0, 0];
+                    ack.extend_from_slice(&payload);
+                    s.write_all(&ack).unwrap();
+                }
+                (7, _) => goaway = true,
+                _ => {}
+            }
+        }
+    }
+    (goaway, false)
+}
+
+#[tokio::test]
+async fn idle_http2_connections_are_closed_and_quiet_streams_are_not() {
+    use std::io::Write;
+    let server = Server::start(&["--idle-timeout", "500ms", "--keepalive", "60s"]);
+    // A bare HTTP/2 client: the preface and empty settings, then nothing but the answers the
+    // protocol asks for (settings and ping acknowledgements).
+    let mut bare = std::net::TcpStream::connect(server.addr).unwrap();
+    bare.write_all(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n\x00\x00\x00\x04\x00\x00\x00\x00\x00")
+        .unwrap();
+    let (goaway, closed) = answer_until_closed(&mut bare, Duration::from_secs(4));
+    assert!(closed, "an idle HTTP/2 connection stayed open for 4 s");
+    assert!(goaway, "no GOAWAY before the close");
+    // A stream with nothing to say for three idle timeouts stays open.
+    let mut c = server.grpc().await;
+    let (tx, mut results) = facepose_testkit::open_stream(&mut c, 4).await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    tx.send(proto::Frame {
+        frame_id: 7,
+        faces: vec![proto_face(&face68(10.0, 0.0, 0.0), "", "", "")],
+        ..Default::default()
+    })
+    .await
+    .unwrap();
+    let r = tokio_stream::StreamExt::next(&mut results)
+        .await
+        .unwrap()
+        .unwrap();
+    assert_eq!(r.frame_id, 7);
+}
+
+#[tokio::test]
+async fn connections_past_the_cap_get_a_503_and_a_freed_slot_is_reused() {
+    let server = Server::start(&["--max-connections", "3"]);
+    let held: Vec<_> = (0..3)
+        .map(|_| std::net::TcpStream::connect(server.addr).unwrap())
+        .collect();
+    // Give the server the time to accept them.
+    std::thread::sleep(Duration::from_millis(200));
+    let (status, body) = raw_post(server.addr, "/v1/pose", "application/json", b"{}");
+    assert_eq!(status, 503, "{body}");
+    assert!(body.contains("--max-connections"), "{body}");
+    drop(held);
+    let t = Instant::now();
+    loop {
+        if raw_get(server.addr, "/healthz").is_some_and(|(s, _)| s == 200) {
+            break;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(3),
+            "the slots were not freed"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}

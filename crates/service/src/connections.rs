@@ -1,0 +1,280 @@
+//! The accept loop: HTTP/1 and HTTP/2 (gRPC) connections on one listener, with the bounds a
+//! server facing anyone needs, which `axum::serve` does not set.
+//!
+//! - **A cap on open connections** (`--max-connections`, by default the open-file limit less a
+//!   reserve for the models folder and the jobs): past it a connection is answered at once with
+//!   a 503 and closed, rather than left to exhaust the process's file descriptors (which made
+//!   every accept, and the models folder's poll, fail with "Too many open files").
+//! - **A header-read timeout** (`--header-timeout`): an HTTP/1 client has that long to send a
+//!   request's headers, counted from the connection's start or the end of the previous request
+//!   (hyper's timer), so slow-header clients and idle HTTP/1 connections are closed after it.
+//! - **An idle timeout** (`--idle-timeout`): an HTTP/2 connection with no request or stream in
+//!   progress that long is closed gracefully (GOAWAY).
+//! - **Keep-alive pings** (`--keepalive`) on HTTP/2: a peer that does not answer a ping within
+//!   the same period is gone, and its connection (and streams) are closed; streams that should
+//!   live stay open however quiet they are.
+//!
+//! On shutdown the loop stops accepting and asks every connection to finish gracefully (HTTP/1
+//! after its current request, HTTP/2 by GOAWAY), then waits for them all, as `axum::serve`'s
+//! graceful shutdown did.
+
+use std::pin::pin;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::body::Body;
+use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+use hyper_util::server::conn::auto;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{Semaphore, watch};
+use tokio_util::task::TaskTracker;
+use tower::ServiceExt;
+
+/// The connection bounds of the module doc.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConnectionLimits {
+    pub max_connections: usize,
+    pub header_timeout: Duration,
+    pub idle_timeout: Duration,
+    pub keepalive: Duration,
+}
+
+/// The answer to a connection over the cap, whatever it sent.
+fn refusal(max: usize) -> Vec<u8> {
+    let body = format!(
+        "{{\"error\":{{\"code\":\"unavailable\",\"message\":\"too many open connections \
+         ({max}, --max-connections): retry, possibly on another replica\"}}}}"
+    );
+    format!(
+        "HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\n\
+         retry-after: 1\r\nconnection: close\r\ncontent-length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .into_bytes()
+}
+
+/// What one connection is doing: requests (and response bodies, streams included) in progress,
+/// and when the last one ended.
+#[derive(Debug, Default)]
+struct Activity {
+    in_progress: AtomicUsize,
+    /// Milliseconds since the connection's start at which it last became idle.
+    idle_since_ms: AtomicU64,
+}
+
+/// Held while a request's response is being sent.
+struct Busy {
+    activity: Arc<Activity>,
+    start: Instant,
+}
+
+impl Busy {
+    fn new(activity: Arc<Activity>, start: Instant) -> Busy {
+        activity.in_progress.fetch_add(1, Ordering::AcqRel);
+        Busy { activity, start }
+    }
+}
+
+impl Drop for Busy {
+    fn drop(&mut self) {
+        let ms = self.start.elapsed().as_millis() as u64;
+        self.activity.idle_since_ms.store(ms, Ordering::Release);
+        self.activity.in_progress.fetch_sub(1, Ordering::AcqRel);
+    }
+}
+
+/// A response body that keeps its connection busy until it is sent or dropped.
+struct TrackedBody {
+    inner: Body,
+    _busy: Busy,
+}
+
+impl http_body::Body for TrackedBody {
+    type Data = axum::body::Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Self::Data>, Self::Error>>> {
+        std::pin::Pin::new(&mut self.inner).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// Serves `router` on `listener` until `shutdown` resolves, then drains (module doc).
+pub async fn serve(
+    listener: TcpListener,
+    router: Router,
+    limits: ConnectionLimits,
+    shutdown: impl Future<Output = ()>,
+) {
+    let mut builder = auto::Builder::new(TokioExecutor::new());
+    builder
+        .http1()
+        .timer(TokioTimer::new())
+        .header_read_timeout(limits.header_timeout);
+    builder
+        .http2()
+        .timer(TokioTimer::new())
+        .keep_alive_interval(limits.keepalive)
+        .keep_alive_timeout(limits.keepalive);
+    let builder = Arc::new(builder);
+    let permits = Arc::new(Semaphore::new(limits.max_connections));
+    let refusing = Arc::new(Semaphore::new(MAX_REFUSING));
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let connections = TaskTracker::new();
+    let mut shutdown = pin!(shutdown);
+    let mut last_accept_error: Option<Instant> = None;
+    loop {
+        let (tcp, _peer) = tokio::select! {
+            biased;
+            _ = &mut shutdown => break,
+            accepted = listener.accept() => match accepted {
+                Ok(c) => c,
+                Err(e) => {
+                    // Out of file descriptors, or a connection reset before it was accepted:
+                    // say so at most once a second, and give the process a moment.
+                    if last_accept_error.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
+                        tracing::warn!(error = %e, "accept failed");
+                        last_accept_error = Some(Instant::now());
+                    }
+                    if !matches!(
+                        e.kind(),
+                        std::io::ErrorKind::ConnectionReset | std::io::ErrorKind::ConnectionAborted
+                    ) {
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                    }
+                    continue;
+                }
+            },
+        };
+        let _ = tcp.set_nodelay(true);
+        let Ok(permit) = permits.clone().try_acquire_owned() else {
+            refuse(tcp, limits.max_connections, &refusing);
+            continue;
+        };
+        let (builder, router, stop) = (builder.clone(), router.clone(), stop_rx.clone());
+        connections.spawn(async move {
+            serve_connection(&builder, tcp, router, limits.idle_timeout, stop).await;
+            drop(permit);
+        });
+    }
+    drop(listener);
+    let _ = stop_tx.send(true);
+    connections.close();
+    connections.wait().await;
+}
+
+/// Connections over the cap being answered at once, at most: past it they are closed without
+/// an answer.
+const MAX_REFUSING: usize = 64;
+
+/// How long a refused connection may take to read its answer.
+const REFUSAL_TIME: Duration = Duration::from_secs(1);
+
+/// Answers a connection over the cap and closes it. The answer fits a fresh socket's send
+/// buffer, so one non-blocking write sends it; what the client sent meanwhile is read and
+/// dropped for up to [`REFUSAL_TIME`], since closing a socket with unread bytes resets it and
+/// the client would lose the answer.
+fn refuse(tcp: TcpStream, max: usize, refusing: &Arc<Semaphore>) {
+    tracing::debug!(max, "connection refused: too many open connections");
+    let Ok(slot) = refusing.clone().try_acquire_owned() else {
+        return;
+    };
+    tokio::spawn(async move {
+        use tokio::io::{AsyncReadExt, AsyncWriteExt};
+        let mut tcp = tcp;
+        if tcp.try_write(&refusal(max)).is_err() {
+            return;
+        }
+        let _ = tcp.shutdown().await;
+        let mut sink = [0u8; 4096];
+        let _ = tokio::time::timeout(REFUSAL_TIME, async {
+            while matches!(tcp.read(&mut sink).await, Ok(n) if n > 0) {}
+        })
+        .await;
+        drop(slot);
+    });
+}
+
+async fn serve_connection(
+    builder: &auto::Builder<TokioExecutor>,
+    tcp: TcpStream,
+    router: Router,
+    idle_timeout: Duration,
+    mut stop: watch::Receiver<bool>,
+) {
+    let start = Instant::now();
+    let activity = Arc::new(Activity::default());
+    let tracked = activity.clone();
+    let service = hyper::service::service_fn(move |req: hyper::Request<hyper::body::Incoming>| {
+        let busy = Busy::new(tracked.clone(), start);
+        let router = router.clone();
+        async move {
+            let resp = router.oneshot(req.map(Body::new)).await?;
+            Ok::<_, std::convert::Infallible>(resp.map(|inner| TrackedBody { inner, _busy: busy }))
+        }
+    });
+    let mut conn = pin!(builder.serve_connection_with_upgrades(TokioIo::new(tcp), service));
+    let mut closing = false;
+    let mut tick = tokio::time::interval(idle_timeout.min(Duration::from_secs(1)));
+    loop {
+        tokio::select! {
+            result = conn.as_mut() => {
+                if let Err(e) = result {
+                    tracing::debug!(error = %e, "connection ended with an error");
+                }
+                return;
+            }
+            _ = stop.changed(), if !closing => {
+                closing = true;
+                conn.as_mut().graceful_shutdown();
+            }
+            _ = tick.tick(), if !closing => {
+                let idle = activity.in_progress.load(Ordering::Acquire) == 0;
+                let since = Duration::from_millis(activity.idle_since_ms.load(Ordering::Acquire));
+                if idle && start.elapsed().saturating_sub(since) >= idle_timeout {
+                    closing = true;
+                    conn.as_mut().graceful_shutdown();
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_refusal_is_a_complete_http_answer() {
+        let text = String::from_utf8(refusal(10)).unwrap();
+        let (head, body) = text.split_once("\r\n\r\n").unwrap();
+        assert!(head.starts_with("HTTP/1.1 503 "));
+        let length: usize = head
+            .lines()
+            .find_map(|l| l.strip_prefix("content-length: "))
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert_eq!(length, body.len());
+        let v: serde_json::Value = serde_json::from_str(body).unwrap();
+        assert_eq!(v["error"]["code"], "unavailable");
+        assert!(
+            v["error"]["message"]
+                .as_str()
+                .unwrap()
+                .contains("--max-connections")
+        );
+    }
+}
