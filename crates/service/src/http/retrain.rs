@@ -198,6 +198,13 @@ impl RetrainRequest {
     }
 }
 
+/// A `POST /v1/models` body as the application's upload (not yet validated: see
+/// `facepose_app::retrain::prepare`).
+pub fn parse_upload(bytes: &[u8]) -> Result<RawUpload, HttpError> {
+    let req: RetrainRequest = parse_json(bytes)?;
+    Ok(req.into_raw(sha256_hex(bytes))?)
+}
+
 /// Upload a shape set and retrain a model in the background (admin).
 #[utoipa::path(
     post, path = "/v1/models", tag = "registry",
@@ -242,10 +249,9 @@ pub async fn retrain(
     let job = app
         .retrain(
             move || {
-                let req: RetrainRequest = parse_json(&bytes)?;
-                let sha = sha256_hex(&bytes);
+                let raw = parse_upload(&bytes)?;
                 drop(bytes);
-                Ok::<_, HttpError>(req.into_raw(sha)?)
+                Ok::<_, HttpError>(raw)
             },
             slot,
         )
