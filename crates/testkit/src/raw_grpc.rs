@@ -57,15 +57,7 @@ pub async fn unary(
     rpc: &str,
     message: Vec<u8>,
 ) -> Result<Response<Vec<u8>>, Status> {
-    let mut grpc = tonic::client::Grpc::new(channel)
-        .max_encoding_message_size(usize::MAX)
-        .max_decoding_message_size(usize::MAX);
-    grpc.ready()
-        .await
-        .map_err(|e| Status::unavailable(e.to_string()))?;
-    let path = format!("/facepose.v1.PoseService/{rpc}")
-        .parse()
-        .expect("a valid path");
+    let (mut grpc, path) = ready(channel, rpc).await?;
     grpc.unary(tonic::Request::new(message), path, RawCodec)
         .await
 }
@@ -78,6 +70,23 @@ pub async fn first_answer(
     rpc: &str,
     messages: Vec<Vec<u8>>,
 ) -> Result<Option<Vec<u8>>, Status> {
+    let (mut grpc, path) = ready(channel, rpc).await?;
+    let request = tonic::Request::new(tokio_stream::iter(messages));
+    let mut answers = grpc.streaming(request, path, RawCodec).await?.into_inner();
+    answers.message().await
+}
+
+/// A client on `channel` with no size limits, ready, and the path of `rpc`.
+async fn ready(
+    channel: Channel,
+    rpc: &str,
+) -> Result<
+    (
+        tonic::client::Grpc<Channel>,
+        tonic::codegen::http::uri::PathAndQuery,
+    ),
+    Status,
+> {
     let mut grpc = tonic::client::Grpc::new(channel)
         .max_encoding_message_size(usize::MAX)
         .max_decoding_message_size(usize::MAX);
@@ -87,7 +96,5 @@ pub async fn first_answer(
     let path = format!("/facepose.v1.PoseService/{rpc}")
         .parse()
         .expect("a valid path");
-    let request = tonic::Request::new(tokio_stream::iter(messages));
-    let mut answers = grpc.streaming(request, path, RawCodec).await?.into_inner();
-    answers.message().await
+    Ok((grpc, path))
 }

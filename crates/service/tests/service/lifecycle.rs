@@ -84,11 +84,15 @@ async fn overload_and_timeouts_are_refused_not_collapsed() {
     assert_eq!(r.status(), reqwest::StatusCode::OK);
 }
 
-/// Reads from `s` until the server closes it or `limit` passes: (bytes read, closed in time).
-fn read_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (Vec<u8>, bool) {
-    use std::io::Read;
+/// Reads from `s` until the server closes it or `limit` passes, writing back what `answer`
+/// returns for each read: whether it closed in time.
+fn until_closed(
+    s: &mut std::net::TcpStream,
+    limit: Duration,
+    mut answer: impl FnMut(&[u8]) -> Vec<u8>,
+) -> bool {
+    use std::io::{Read, Write};
     let deadline = Instant::now() + limit;
-    let mut got = Vec::new();
     let mut buf = [0u8; 4096];
     while Instant::now() < deadline {
         s.set_read_timeout(Some(
@@ -98,13 +102,26 @@ fn read_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (Vec<u8>, 
         ))
         .unwrap();
         match s.read(&mut buf) {
-            Ok(0) => return (got, true),
-            Ok(n) => got.extend_from_slice(&buf[..n]),
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return (got, true),
+            Ok(0) => return true,
+            Ok(n) => {
+                let reply = answer(&buf[..n]);
+                s.write_all(&reply).unwrap();
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return true,
             Err(_) => break,
         }
     }
-    (got, false)
+    false
+}
+
+/// Reads from `s` until the server closes it or `limit` passes: (bytes read, closed in time).
+fn read_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (Vec<u8>, bool) {
+    let mut got = Vec::new();
+    let closed = until_closed(s, limit, |bytes| {
+        got.extend_from_slice(bytes);
+        Vec::new()
+    });
+    (got, closed)
 }
 
 #[tokio::test]
@@ -138,24 +155,11 @@ async fn slow_headers_and_idle_http1_connections_are_closed_after_the_header_tim
 /// Plays a silent HTTP/2 client on `s` until the server closes it or `limit` passes: whether a
 /// GOAWAY came, and whether the connection was closed in time.
 fn answer_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (bool, bool) {
-    use std::io::{Read, Write};
-    let deadline = Instant::now() + limit;
     let mut pending = Vec::new();
-    let mut buf = [0u8; 4096];
     let mut goaway = false;
-    while Instant::now() < deadline {
-        s.set_read_timeout(Some(
-            deadline
-                .saturating_duration_since(Instant::now())
-                .max(Duration::from_millis(1)),
-        ))
-        .unwrap();
-        match s.read(&mut buf) {
-            Ok(0) => return (goaway, true),
-            Ok(n) => pending.extend_from_slice(&buf[..n]),
-            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return (goaway, true),
-            Err(_) => break,
-        }
+    let closed = until_closed(s, limit, |bytes| {
+        pending.extend_from_slice(bytes);
+        let mut reply = Vec::new();
         while pending.len() >= 9 {
             let len = (usize::from(pending[0]) << 16)
                 | (usize::from(pending[1]) << 8)
@@ -164,21 +168,20 @@ fn answer_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (bool, b
                 break;
             }
             let (kind, flags) = (pending[3], pending[4]);
-            let payload = pending[9..9 + len].to_vec();
-            pending.drain(..9 + len);
             match (kind, flags & 1) {
-                (4, 0) => s.write_all(&[0, 0, 0, 4, 1, 0, 0, 0, 0]).unwrap(),
+                (4, 0) => reply.extend_from_slice(&[0, 0, 0, 4, 1, 0, 0, 0, 0]),
                 (6, 0) => {
-                    let mut ack = vec![0, 0, 8, 6, 1, 0, 0, 0, 0];
-                    ack.extend_from_slice(&payload);
-                    s.write_all(&ack).unwrap();
+                    reply.extend_from_slice(&[0, 0, 8, 6, 1, 0, 0, 0, 0]);
+                    reply.extend_from_slice(&pending[9..9 + len]);
                 }
                 (7, _) => goaway = true,
                 _ => {}
             }
+            pending.drain(..9 + len);
         }
-    }
-    (goaway, false)
+        reply
+    });
+    (goaway, closed)
 }
 
 #[tokio::test]
