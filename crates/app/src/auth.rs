@@ -5,10 +5,12 @@
 //! | configured | request | HTTP | gRPC |
 //! |---|---|---|---|
 //! | no token | any | 403 `forbidden` | PERMISSION_DENIED |
-//! | token | no `Authorization`, not `Bearer`, or a wrong token | 401 `unauthenticated` (`WWW-Authenticate: Bearer`) | UNAUTHENTICATED |
+//! | token | no `Authorization`, more than one, not `Bearer`, or a wrong token | 401 `unauthenticated` (`WWW-Authenticate: Bearer`) | UNAUTHENTICATED |
 //! | token | the token | the route's answer | |
 //!
-//! The comparison is in constant time: both sides are hashed (SHA-256, so their lengths do not
+//! The scheme name is matched without regard to case (`Bearer`, `bearer`, `BEARER`: RFC 9110
+//! §11.1), and a request with two `Authorization` headers is refused rather than judged by
+//! one of them. The comparison is in constant time: both sides are hashed (SHA-256, so their lengths do not
 //! matter either) and the digests compared with `subtle`. The token is never logged, never put
 //! in a message, and its `Debug` form is redacted.
 
@@ -54,25 +56,41 @@ impl AdminToken {
         self.digest.is_some()
     }
 
-    /// Checks the value of an `Authorization` header (or gRPC `authorization` metadata).
-    pub fn check(&self, authorization: Option<&[u8]>) -> Result<(), ServiceError> {
+    /// Checks the values of a request's `Authorization` headers (or gRPC `authorization`
+    /// metadata): exactly one, `Bearer <token>`.
+    pub fn check<'a>(
+        &self,
+        authorization: impl IntoIterator<Item = &'a [u8]>,
+    ) -> Result<(), ServiceError> {
         let Some(expected) = &self.digest else {
             return Err(ServiceError::AdminDisabled);
         };
-        let Some(value) = authorization else {
+        let mut values = authorization.into_iter();
+        let Some(value) = values.next() else {
             return Err(ServiceError::Unauthenticated(Unauthenticated::Missing));
         };
-        let token = value
-            .strip_prefix(b"Bearer ")
-            .or_else(|| value.strip_prefix(b"bearer "))
-            .ok_or(ServiceError::Unauthenticated(Unauthenticated::NotBearer))?;
-        let given: [u8; 32] = Sha256::digest(token.trim_ascii()).into();
+        if values.next().is_some() {
+            return Err(ServiceError::Unauthenticated(Unauthenticated::Repeated));
+        }
+        let token =
+            bearer_token(value).ok_or(ServiceError::Unauthenticated(Unauthenticated::NotBearer))?;
+        let given: [u8; 32] = Sha256::digest(token).into();
         if bool::from(given.ct_eq(expected)) {
             Ok(())
         } else {
             Err(ServiceError::Unauthenticated(Unauthenticated::WrongToken))
         }
     }
+}
+
+/// The credentials of `<scheme> <token>` if the scheme is `Bearer` in any case, trimmed.
+fn bearer_token(value: &[u8]) -> Option<&[u8]> {
+    let value = value.trim_ascii_start();
+    let space = value.iter().position(|&b| b == b' ')?;
+    let (scheme, rest) = value.split_at(space);
+    scheme
+        .eq_ignore_ascii_case(b"bearer")
+        .then(|| rest.trim_ascii())
 }
 
 /// Checks a token read from the environment or a file: at least [`MIN_TOKEN_LEN`] visible
@@ -102,12 +120,9 @@ mod tests {
         let off = AdminToken::disabled();
         let on = AdminToken::new(TOKEN);
         let bearer = format!("Bearer {TOKEN}");
-        let e = off.check(Some(bearer.as_bytes())).unwrap_err();
+        let e = off.check([bearer.as_bytes()]).unwrap_err();
         assert_eq!(e.kind(), ErrorKind::Forbidden);
-        assert_eq!(
-            on.check(None).unwrap_err().kind(),
-            ErrorKind::Unauthenticated
-        );
+        assert_eq!(on.check([]).unwrap_err().kind(), ErrorKind::Unauthenticated);
         for wrong in [
             "Bearer nope".to_string(),
             format!("Basic {TOKEN}"),
@@ -115,14 +130,27 @@ mod tests {
             format!("Bearer {TOKEN}x"),
             format!("Bearer {}", &TOKEN[1..]),
             "Bearer ".to_string(),
+            format!("Bearer{TOKEN}"),
+            format!("Bearerx {TOKEN}"),
         ] {
-            let e = on.check(Some(wrong.as_bytes())).unwrap_err();
+            let e = on.check([wrong.as_bytes()]).unwrap_err();
             assert_eq!(e.kind(), ErrorKind::Unauthenticated, "{wrong}");
             assert!(!e.to_string().contains(TOKEN), "{e}");
         }
-        on.check(Some(bearer.as_bytes())).unwrap();
-        on.check(Some(format!("bearer {TOKEN}").as_bytes()))
+        for scheme in ["Bearer", "bearer", "BEARER", "bEaReR"] {
+            on.check([format!("{scheme} {TOKEN}").as_bytes()]).unwrap();
+        }
+        on.check([format!("  Bearer   {TOKEN} ").as_bytes()])
             .unwrap();
+        // Two headers are refused, even when one of them is right.
+        for pair in [
+            [bearer.as_str(), "Bearer nope"],
+            ["Bearer nope", bearer.as_str()],
+        ] {
+            let e = on.check(pair.map(str::as_bytes)).unwrap_err();
+            assert_eq!(e, ServiceError::Unauthenticated(Unauthenticated::Repeated));
+            assert!(e.to_string().contains("one Authorization header"), "{e}");
+        }
         assert!(!format!("{on:?}").contains(TOKEN));
     }
 

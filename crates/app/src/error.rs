@@ -105,6 +105,8 @@ pub enum Unauthenticated {
     NotBearer,
     /// A bearer token that is not the configured one.
     WrongToken,
+    /// More than one `Authorization` header.
+    Repeated,
 }
 
 /// Why a job cannot be cancelled.
@@ -207,6 +209,7 @@ pub enum ServiceError {
         Unauthenticated::Missing => "missing admin token: send Authorization: Bearer <token>",
         Unauthenticated::NotBearer => "the Authorization header must be \"Bearer <token>\"",
         Unauthenticated::WrongToken => "invalid admin token",
+        Unauthenticated::Repeated => "send one Authorization header: this request has several",
     })]
     Unauthenticated(Unauthenticated),
     #[error("{0}")]

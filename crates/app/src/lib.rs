@@ -253,7 +253,10 @@ impl App {
     }
 
     /// Checks the admin credentials of a call (the value of `Authorization` / `authorization`).
-    pub fn authorize(&self, authorization: Option<&[u8]>) -> Result<(), ServiceError> {
+    pub fn authorize<'a>(
+        &self,
+        authorization: impl IntoIterator<Item = &'a [u8]>,
+    ) -> Result<(), ServiceError> {
         self.admin.check(authorization)
     }
 

@@ -489,7 +489,7 @@ mod tests {
         let file = std::env::temp_dir().join(format!("facepose-token-{}", std::process::id()));
         std::fs::write(&file, format!("{token}\n")).unwrap();
         let t = args(Some(&file)).admin_token(None).unwrap();
-        assert!(t.check(Some(format!("Bearer {token}").as_bytes())).is_ok());
+        assert!(t.check([format!("Bearer {token}").as_bytes()]).is_ok());
         let e = args(Some(&file))
             .admin_token(Some(token.into()))
             .unwrap_err();

@@ -10,6 +10,11 @@
 //!   (hyper's timer), so slow-header clients and idle HTTP/1 connections are closed after it.
 //! - **An idle timeout** (`--idle-timeout`): an HTTP/2 connection with no request or stream in
 //!   progress that long is closed gracefully (GOAWAY).
+//! - **Request headers up to [`MAX_HEADER_LIST`] on HTTP/2**, about what HTTP/1's buffer
+//!   allows (with hyper's 16 KiB default, h2 took a 100 KiB header block for abuse, past 4
+//!   times the limit, and closed the connection with every other call on it). Past the limit
+//!   the request alone is refused (431, its stream reset); h2 still closes the connection
+//!   (GOAWAY) for a block past 4 times it or spread over more than 20 CONTINUATION frames.
 //! - **Keep-alive pings** (`--keepalive`) on HTTP/2: a peer that does not answer a ping within
 //!   the same period is gone, and its connection (and streams) are closed; streams that should
 //!   live stay open however quiet they are.
@@ -31,6 +36,9 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 use tokio_util::task::TaskTracker;
 use tower::ServiceExt;
+
+/// The most bytes of request headers an HTTP/2 request may have (HPACK-decoded).
+pub const MAX_HEADER_LIST: u32 = 256 * 1024;
 
 /// The connection bounds of the module doc.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -127,7 +135,8 @@ pub async fn serve(
         .http2()
         .timer(TokioTimer::new())
         .keep_alive_interval(limits.keepalive)
-        .keep_alive_timeout(limits.keepalive);
+        .keep_alive_timeout(limits.keepalive)
+        .max_header_list_size(MAX_HEADER_LIST);
     let builder = Arc::new(builder);
     let permits = Arc::new(Semaphore::new(limits.max_connections));
     let refusing = Arc::new(Semaphore::new(MAX_REFUSING));

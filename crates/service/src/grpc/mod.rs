@@ -50,7 +50,8 @@ fn authorize<T>(app: &App, request: &Request<T>) -> Result<(), ServiceError> {
     app.authorize(
         request
             .metadata()
-            .get("authorization")
+            .get_all("authorization")
+            .iter()
             .map(|v| v.as_bytes()),
     )
 }

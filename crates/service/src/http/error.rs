@@ -6,6 +6,7 @@
 //! | code | status |
 //! |---|---|
 //! | `malformed_json` | 400 |
+//! | `malformed_path` | 400 |
 //! | `unsupported_media_type` | 415 |
 //! | `invalid_argument` | 422 |
 //! | `unauthenticated` | 401 (with `WWW-Authenticate: Bearer`) |
@@ -31,6 +32,8 @@ use serde::Serialize;
 pub enum ErrorCode {
     /// The body is not JSON.
     MalformedJson,
+    /// A path segment is not UTF-8 once percent-decoded.
+    MalformedPath,
     /// The body is not declared as JSON.
     UnsupportedMediaType,
     /// The request is well-formed but its values are unusable: landmarks, scheme, method,
@@ -62,7 +65,7 @@ pub enum ErrorCode {
 impl ErrorCode {
     pub fn status(self) -> StatusCode {
         match self {
-            ErrorCode::MalformedJson => StatusCode::BAD_REQUEST,
+            ErrorCode::MalformedJson | ErrorCode::MalformedPath => StatusCode::BAD_REQUEST,
             ErrorCode::UnsupportedMediaType => StatusCode::UNSUPPORTED_MEDIA_TYPE,
             ErrorCode::InvalidArgument => StatusCode::UNPROCESSABLE_ENTITY,
             ErrorCode::Unauthenticated => StatusCode::UNAUTHORIZED,
@@ -100,6 +103,8 @@ pub enum HttpError {
     Service(ServiceError),
     /// The body is not JSON (400).
     MalformedJson(String),
+    /// The path does not decode (400).
+    MalformedPath(String),
     /// The body is not declared as JSON (415).
     UnsupportedMediaType(String),
     /// No route, or no such action on a route (404).
@@ -130,6 +135,7 @@ impl HttpError {
         match self {
             HttpError::Service(e) => ErrorCode::of(e.kind()),
             HttpError::MalformedJson(_) => ErrorCode::MalformedJson,
+            HttpError::MalformedPath(_) => ErrorCode::MalformedPath,
             HttpError::UnsupportedMediaType(_) => ErrorCode::UnsupportedMediaType,
             HttpError::NotFound(_) => ErrorCode::NotFound,
             HttpError::MethodNotAllowed(_) => ErrorCode::MethodNotAllowed,
@@ -142,6 +148,7 @@ impl HttpError {
         facepose_app::error::bounded_message(match self {
             HttpError::Service(e) => message(e),
             HttpError::MalformedJson(m)
+            | HttpError::MalformedPath(m)
             | HttpError::UnsupportedMediaType(m)
             | HttpError::NotFound(m)
             | HttpError::MethodNotAllowed(m) => m.clone(),
@@ -174,6 +181,7 @@ impl ErrorCode {
     pub fn name(self) -> &'static str {
         match self {
             ErrorCode::MalformedJson => "malformed_json",
+            ErrorCode::MalformedPath => "malformed_path",
             ErrorCode::UnsupportedMediaType => "unsupported_media_type",
             ErrorCode::MethodNotAllowed => "method_not_allowed",
             ErrorCode::InvalidArgument => ErrorKind::InvalidArgument.name(),

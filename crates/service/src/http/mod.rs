@@ -15,6 +15,7 @@ pub mod error;
 pub mod middleware;
 pub mod models;
 pub mod ops;
+pub mod path;
 pub mod pose;
 pub mod request_json;
 pub mod retrain;

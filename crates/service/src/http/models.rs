@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use axum::Json;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use facepose_app::App;
 use serde::Serialize;
@@ -12,6 +12,7 @@ use utoipa::ToSchema;
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 
 use super::error::{ErrorBody, HttpError};
+use super::path::Segments;
 use super::wire::{
     ActivateResponse, ModelSummary, ModelsResponse, ProvenanceSummary, VersionsResponse,
 };
@@ -41,7 +42,8 @@ impl utoipa::Modify for BearerAuth {
 pub fn authorize(app: &App, headers: &HeaderMap) -> Result<(), HttpError> {
     Ok(app.authorize(
         headers
-            .get(header::AUTHORIZATION)
+            .get_all(header::AUTHORIZATION)
+            .iter()
             .map(HeaderValue::as_bytes),
     )?)
 }
@@ -56,10 +58,12 @@ pub async fn list_models(State(app): State<Arc<App>>) -> Json<ModelsResponse> {
 /// One model, with its provenance.
 #[utoipa::path(get, path = "/v1/models/{name}", tag = "models",
     params(("name" = String, Path, description = "The model's name")),
-    responses((status = 200, body = ModelDetail), (status = 404, body = ErrorBody)))]
+    responses((status = 200, body = ModelDetail), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, body = ErrorBody),
+        (status = 422, description = "A name over 64 characters", body = ErrorBody)))]
 pub async fn get_model(
     State(app): State<Arc<App>>,
-    Path(name): Path<String>,
+    Segments(name): Segments<String>,
 ) -> Result<Json<ModelDetail>, HttpError> {
     let detail = app.model_detail(&name)?;
     Ok(Json(ModelDetail {
@@ -71,10 +75,11 @@ pub async fn get_model(
 /// A model's versions in the models folder (also for a model not served yet).
 #[utoipa::path(get, path = "/v1/models/{name}/versions", tag = "registry",
     params(("name" = String, Path, description = "The model's folder name")),
-    responses((status = 200, body = VersionsResponse), (status = 404, body = ErrorBody)))]
+    responses((status = 200, body = VersionsResponse), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, body = ErrorBody)))]
 pub async fn list_versions(
     State(app): State<Arc<App>>,
-    Path(name): Path<String>,
+    Segments(name): Segments<String>,
 ) -> Result<Json<VersionsResponse>, HttpError> {
     Ok(Json(app.versions(&name).await?.into()))
 }
@@ -87,12 +92,14 @@ pub async fn list_versions(
     security(("admin_token" = [])),
     responses(
         (status = 200, description = "Active and served here; other replicas follow within --registry-poll", body = ActivateResponse),
+        (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
         (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
         (status = 404, description = "Unknown model or version", body = ErrorBody),
+        (status = 422, description = "Not a model name (1-64 of a-z, 0-9, `_`, `.`, `-`) or not a version id", body = ErrorBody),
         (status = 409, description = "The version does not load, or no models folder", body = ErrorBody)))]
 pub async fn version_action(
     State(app): State<Arc<App>>,
-    Path((name, version)): Path<(String, String)>,
+    Segments((name, version)): Segments<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Json<ActivateResponse>, HttpError> {
     authorize(&app, &headers)?;
@@ -115,12 +122,14 @@ pub async fn version_action(
     security(("admin_token" = [])),
     responses(
         (status = 204, description = "Deleted"),
+        (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
         (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
         (status = 404, description = "Unknown model or version", body = ErrorBody),
+        (status = 422, description = "Not a model name (1-64 of a-z, 0-9, `_`, `.`, `-`) or not a version id", body = ErrorBody),
         (status = 409, description = "The active version, the folder's own bundle or the built-in model", body = ErrorBody)))]
 pub async fn delete_version(
     State(app): State<Arc<App>>,
-    Path((name, version)): Path<(String, String)>,
+    Segments((name, version)): Segments<(String, String)>,
     headers: HeaderMap,
 ) -> Result<StatusCode, HttpError> {
     authorize(&app, &headers)?;

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use axum::Json;
 use axum::body::Body;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use facepose_app::App;
@@ -15,11 +15,48 @@ use facepose_app::retrain::{RawGrid, RawOptions, RawUpload, SchemeSpec, UploadDa
 use facepose_core::model::bundle::sha256_hex;
 use facepose_core::shape::Scheme;
 use serde::Deserialize;
+use serde::de::{Error as _, IgnoredAny, SeqAccess, Visitor};
 use utoipa::ToSchema;
 
 use super::body::{discard_body, parse_json, read_body_limited, require_json};
 use super::error::{ErrorBody, HttpError};
 use super::models::authorize;
+use super::path::Segments;
+
+/// A point of exactly `N` coordinates. serde's own `[f64; N]` takes a point with one number too
+/// many for a JSON syntax error ("trailing characters", 400) but one with a number too few for
+/// a value error (422); here both are value errors, as every other unusable value of an upload.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Coords<const N: usize>(pub [f64; N]);
+
+impl<'de, const N: usize> Deserialize<'de> for Coords<N> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Points<const N: usize>;
+        impl<'de, const N: usize> Visitor<'de> for Points<N> {
+            type Value = Coords<N>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                write!(f, "a point of {N} numbers")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Coords<N>, A::Error> {
+                let mut c = [0.0; N];
+                for (i, x) in c.iter_mut().enumerate() {
+                    *x = seq
+                        .next_element()?
+                        .ok_or_else(|| A::Error::invalid_length(i, &self))?;
+                }
+                let mut len = N;
+                while seq.next_element::<IgnoredAny>()?.is_some() {
+                    len += 1;
+                }
+                if len > N {
+                    return Err(A::Error::invalid_length(len, &self));
+                }
+                Ok(Coords(c))
+            }
+        }
+        d.deserialize_seq(Points::<N>)
+    }
+}
 
 /// One subject of a multi-view upload: its views, each one `[x, y]` (image pixels) or `null`
 /// per point of the scheme.
@@ -31,7 +68,7 @@ pub struct SubjectUpload {
     #[schema(value_type = Option<Object>)]
     pub id: Option<serde_json::Value>,
     #[schema(value_type = Vec<Vec<Option<Vec<f64>>>>)]
-    pub views: Vec<Vec<Option<[f64; 2]>>>,
+    pub views: Vec<Vec<Option<Coords<2>>>>,
 }
 
 /// A pose grid: `[min, max, step]` in degrees per angle; no `roll`: 0 only.
@@ -110,7 +147,7 @@ pub struct RetrainRequest {
     /// 3D shapes: one `[x, y, z]` per point of the scheme (model frame, mm).
     #[serde(default)]
     #[schema(value_type = Option<Vec<Vec<Vec<f64>>>>)]
-    pub shapes: Option<Vec<Vec<[f64; 3]>>>,
+    pub shapes: Option<Vec<Vec<Coords<3>>>>,
     /// Or several 2D views per subject, rebuilt by structure from motion.
     #[serde(default)]
     pub subjects: Option<Vec<SubjectUpload>>,
@@ -165,13 +202,20 @@ impl RetrainRequest {
                     .map(|shape| {
                         shape
                             .into_iter()
-                            .map(facepose_core::shape::Point3::from)
+                            .map(|c| facepose_core::shape::Point3::from(c.0))
                             .collect()
                     })
                     .collect(),
             )),
             (None, Some(s)) => Some(UploadData::Subjects(
-                s.into_iter().map(|s| s.views).collect(),
+                s.into_iter()
+                    .map(|s| {
+                        s.views
+                            .into_iter()
+                            .map(|view| view.into_iter().map(|p| p.map(|c| c.0)).collect())
+                            .collect()
+                    })
+                    .collect(),
             )),
             (None, None) => None,
         };
@@ -269,10 +313,10 @@ pub async fn retrain(
 /// A retraining job, from any replica sharing the models folder.
 #[utoipa::path(get, path = "/v1/models/jobs/{id}", tag = "registry",
     params(("id" = String, Path, description = "The job id from POST /v1/models")),
-    responses((status = 200, body = Job), (status = 404, body = ErrorBody)))]
+    responses((status = 200, body = Job), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody), (status = 404, body = ErrorBody)))]
 pub async fn get_job(
     State(app): State<Arc<App>>,
-    Path(id): Path<String>,
+    Segments(id): Segments<String>,
 ) -> Result<Json<Job>, HttpError> {
     Ok(Json(app.job(&id).await?))
 }
@@ -285,12 +329,13 @@ pub async fn get_job(
     responses(
         (status = 200, description = "Cancelled (state `cancelled`)", body = Job),
         (status = 202, description = "The job runs on another replica, asked to cancel it at its next stage; the job as last recorded", body = Job),
+        (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
         (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
         (status = 404, description = "Unknown job, or no action", body = ErrorBody),
         (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
 pub async fn job_action(
     State(app): State<Arc<App>>,
-    Path(id): Path<String>,
+    Segments(id): Segments<String>,
     headers: HeaderMap,
 ) -> Result<(StatusCode, Json<Job>), HttpError> {
     authorize(&app, &headers)?;

@@ -6,8 +6,14 @@ use facepose_app::views::{ModelView, ModelsView, VersionView, VersionsView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::bundle::Provenance;
 use facepose_core::record::{Landmarks, PoseRecord};
+use facepose_core::shape::MAX_POINTS;
 use serde::{Deserialize, Serialize};
+use serde_json::value::RawValue;
 use utoipa::ToSchema;
+use utoipa::openapi::RefOr;
+use utoipa::openapi::schema::{
+    ArrayBuilder, ObjectBuilder, OneOfBuilder, Schema, SchemaType, Type,
+};
 
 use super::error::ErrorObject;
 
@@ -32,38 +38,74 @@ impl From<Camera> for Intrinsics {
     }
 }
 
-/// A client's identifier for a face (a string or a number), echoed in its result.
-#[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
-#[serde(untagged)]
+/// A client's identifier for a face (a string or a number), echoed in its result as it was
+/// sent: a number keeps its digits (`18446744073709551616` comes back as that, not as a
+/// float), a string its characters.
+#[derive(Debug, Clone)]
 pub enum FaceId {
     Text(String),
-    Integer(i64),
-    Number(f64),
+    /// The number's JSON text.
+    Number(Box<RawValue>),
+}
+
+impl PartialEq for FaceId {
+    fn eq(&self, other: &Self) -> bool {
+        match (self, other) {
+            (FaceId::Text(a), FaceId::Text(b)) => a == b,
+            (FaceId::Number(a), FaceId::Number(b)) => a.get() == b.get(),
+            _ => false,
+        }
+    }
+}
+
+impl Serialize for FaceId {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            FaceId::Text(t) => s.serialize_str(t),
+            FaceId::Number(n) => n.serialize(s),
+        }
+    }
 }
 
 impl<'de> Deserialize<'de> for FaceId {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl serde::de::Visitor<'_> for V {
-            type Value = FaceId;
-            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str("id as a string or a number")
-            }
-            fn visit_str<E>(self, v: &str) -> Result<FaceId, E> {
-                Ok(FaceId::Text(v.to_string()))
-            }
-            fn visit_i64<E>(self, v: i64) -> Result<FaceId, E> {
-                Ok(FaceId::Integer(v))
-            }
-            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<FaceId, E> {
-                Ok(i64::try_from(v).map_or(FaceId::Number(v as f64), FaceId::Integer))
-            }
-            fn visit_f64<E>(self, v: f64) -> Result<FaceId, E> {
-                Ok(FaceId::Number(v))
-            }
+        use serde::de::{Error, Unexpected};
+        let raw = Box::<RawValue>::deserialize(d)?;
+        match raw.get().as_bytes().first() {
+            Some(b'"') => serde_json::from_str(raw.get())
+                .map(FaceId::Text)
+                .map_err(D::Error::custom),
+            Some(b'-' | b'0'..=b'9') => Ok(FaceId::Number(raw)),
+            _ => Err(D::Error::invalid_type(
+                Unexpected::Other(raw.get().get(..16).unwrap_or(raw.get())),
+                &"id as a string or a number",
+            )),
         }
-        d.deserialize_any(V)
     }
+}
+
+impl utoipa::PartialSchema for FaceId {
+    fn schema() -> RefOr<Schema> {
+        OneOfBuilder::new()
+            .item(ObjectBuilder::new().schema_type(Type::String))
+            .item(ObjectBuilder::new().schema_type(Type::Number))
+            .description(Some(
+                "A string or a number, echoed as sent (a number keeps its digits).",
+            ))
+            .into()
+    }
+}
+
+impl ToSchema for FaceId {}
+
+/// The schema of a landmark list: at most [`MAX_POINTS`] entries, each `[x, y]` or `null`.
+fn landmarks_schema() -> ArrayBuilder {
+    let point = ArrayBuilder::new()
+        .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+        .items(ObjectBuilder::new().schema_type(Type::Number))
+        .min_items(Some(2))
+        .max_items(Some(2));
+    ArrayBuilder::new().items(point).max_items(Some(MAX_POINTS))
 }
 
 /// `POST /v1/pose`: one face.
@@ -72,7 +114,7 @@ impl<'de> Deserialize<'de> for FaceId {
 pub struct PoseRequest {
     /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a
     /// point that could not be found.
-    #[schema(value_type = Vec<Option<Vec<f64>>>, example = json!([[231.5, 310.0], null]))]
+    #[schema(schema_with = landmarks_schema, example = json!([[231.5, 310.0], null]))]
     pub landmarks: Landmarks,
     /// The landmark scheme (`ibug68`, `inner51`, `five`, ...); default: the model's own.
     #[serde(default)]
@@ -114,7 +156,7 @@ pub struct PoseResponse {
 #[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct BatchFace {
-    #[schema(value_type = Vec<Option<Vec<f64>>>)]
+    #[schema(schema_with = landmarks_schema)]
     pub landmarks: Landmarks,
     #[serde(default)]
     pub scheme: Option<String>,

@@ -706,3 +706,29 @@ async fn long_names_are_invalid_arguments_with_short_messages() {
         .unwrap_err();
     assert!(s.message().len() <= 1024, "{} bytes", s.message().len());
 }
+
+#[tokio::test]
+async fn a_large_header_block_costs_its_own_call_only() {
+    // hyper's 16 KiB header list limit made h2 read a 100 KiB header block as a CONTINUATION
+    // flood: GOAWAY, and every other call on the connection (this open stream) ended with it.
+    let server = Server::start(&[]);
+    let mut c = server.grpc().await;
+    let (tx, mut out) = open_stream(&mut c, 4).await;
+    let face = || proto_face(&face68(10.0, 0.0, 0.0), "", "", "");
+    tx.send(frame(0, vec![face()], None)).await.unwrap();
+    assert_eq!(out.next().await.unwrap().unwrap().frame_id, 0);
+    for (kib, ok) in [(100, true), (300, false)] {
+        let mut r = tonic::Request::new(request(face(), ""));
+        let value = "v".repeat(kib * 1024);
+        r.metadata_mut().insert("x-large", value.parse().unwrap());
+        let answer = c.clone().estimate(r).await;
+        assert_eq!(answer.is_ok(), ok, "{kib} KiB: {answer:?}");
+        // The stream on the same connection goes on.
+        tx.send(frame(kib as u64, vec![face()], None))
+            .await
+            .unwrap();
+        let res = out.next().await.unwrap().unwrap();
+        assert_eq!(res.frame_id, kib as u64);
+        assert!(pose_of(&res.faces[0]).yaw > 9.0);
+    }
+}

@@ -598,3 +598,150 @@ async fn long_names_are_refused_and_errors_never_echo_more_than_a_kilobyte() {
         "{message}"
     );
 }
+
+#[tokio::test]
+async fn ids_come_back_as_sent() {
+    // An id of 2^64 came back as 1.8446744073709552e+19.
+    let server = Server::start(&[]);
+    let face = serde_json::to_string(&face5(10.0, 0.0, 0.0)).unwrap();
+    for id in [
+        "18446744073709551616",
+        "-9223372036854775809",
+        "7",
+        "2.50",
+        "1e3",
+        "\"a\\u00e9\"",
+    ] {
+        let body = format!("{{\"landmarks\": {face}, \"scheme\": \"five\", \"id\": {id}}}");
+        let (s, text) = raw_post(server.addr, "/v1/pose", "application/json", body.as_bytes());
+        assert_eq!(s, 200, "{text}");
+        let sent: Value = serde_json::from_str(id).unwrap();
+        let got: Value = serde_json::from_str(&text).unwrap();
+        if sent.is_string() {
+            assert_eq!(got["id"], sent);
+        } else {
+            assert!(text.contains(&format!("\"id\":{id}")), "{id}: {text}");
+        }
+        let body = format!(
+            "{{\"scheme\": \"five\", \"faces\": [{{\"landmarks\": {face}, \"id\": {id}}}, \
+             {{\"landmarks\": [], \"id\": {id}}}]}}"
+        );
+        let (s, text) = raw_post(
+            server.addr,
+            "/v1/pose:batch",
+            "application/json",
+            body.as_bytes(),
+        );
+        assert_eq!(s, 200, "{text}");
+        if !sent.is_string() {
+            assert_eq!(text.matches(&format!("\"id\":{id}")).count(), 2, "{text}");
+        }
+    }
+    for bad in ["true", "[1]", "{}"] {
+        let body = format!("{{\"landmarks\": {face}, \"scheme\": \"five\", \"id\": {bad}}}");
+        let (s, text) = raw_post(server.addr, "/v1/pose", "application/json", body.as_bytes());
+        assert_eq!(s, 422, "{text}");
+        assert!(text.contains("id as a string or a number"), "{text}");
+    }
+}
+
+#[tokio::test]
+async fn path_segments_that_do_not_decode_get_the_json_error() {
+    let server = Server::start(&[]);
+    for path in [
+        "/v1/models/%c0%ae",
+        "/v1/models/%ff/versions",
+        "/v1/models/jobs/%80",
+    ] {
+        let (s, text) = raw_get(server.addr, path).unwrap();
+        assert_eq!(s, 400, "{path}: {text}");
+        let v: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+        assert_eq!(v["error"]["code"], "malformed_path", "{v}");
+        assert!(
+            v["error"]["message"].as_str().unwrap().contains("UTF-8"),
+            "{v}"
+        );
+    }
+}
+
+/// The OpenAPI document's schemas for what clients send: an integer id matches one branch of
+/// `FaceId` (it matched two of `oneOf [string, integer, number]`), landmark lists are bounded,
+/// and every status a path route answers for a bad name is listed.
+#[tokio::test]
+async fn the_document_describes_ids_landmarks_and_path_errors() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let doc: Value = c
+        .get(server.url("/openapi.json"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let schemas = &doc["components"]["schemas"];
+    let branches = schemas["FaceId"]["oneOf"].as_array().unwrap();
+    let types: Vec<&str> = branches
+        .iter()
+        .map(|b| b["type"].as_str().unwrap())
+        .collect();
+    assert_eq!(types, ["string", "number"], "{}", schemas["FaceId"]);
+    for (schema, field) in [("PoseRequest", "landmarks"), ("BatchFace", "landmarks")] {
+        let l = &schemas[schema]["properties"][field];
+        assert_eq!(l["maxItems"], 1000, "{schema}: {l}");
+        assert_eq!(l["items"]["minItems"], 2, "{schema}: {l}");
+        assert_eq!(l["items"]["maxItems"], 2, "{schema}: {l}");
+        assert_eq!(
+            l["items"]["type"],
+            json!(["array", "null"]),
+            "{schema}: {l}"
+        );
+    }
+    // Bad names on every route with path parameters: the status is one the document lists.
+    let long = "m".repeat(65);
+    let routes = [
+        ("get", "/v1/models/{name}", "/v1/models/NAME"),
+        (
+            "get",
+            "/v1/models/{name}/versions",
+            "/v1/models/NAME/versions",
+        ),
+        (
+            "post",
+            "/v1/models/{name}/versions/{version}",
+            "/v1/models/NAME/versions/1:activate",
+        ),
+        (
+            "delete",
+            "/v1/models/{name}/versions/{version}",
+            "/v1/models/NAME/versions/1",
+        ),
+        ("get", "/v1/models/jobs/{id}", "/v1/models/jobs/NAME"),
+        (
+            "post",
+            "/v1/models/jobs/{id}",
+            "/v1/models/jobs/NAME:cancel",
+        ),
+    ];
+    let admin = Server::start_admin(&[], "0123456789abcdef-admin");
+    for (method, template, path) in routes {
+        let listed = doc["paths"][template][method]["responses"]
+            .as_object()
+            .unwrap_or_else(|| panic!("{method} {template}"));
+        for name in ["..", "Upper", "a%20b", long.as_str(), "%c0%ae"] {
+            let url = admin.url(&path.replace("NAME", name));
+            let r = c
+                .request(method.to_uppercase().parse().unwrap(), url)
+                .bearer_auth("0123456789abcdef-admin")
+                .send()
+                .await
+                .unwrap();
+            let status = r.status().as_u16().to_string();
+            assert!(
+                listed.contains_key(&status),
+                "{method} {path} with {name:?}: {status} not in {:?}",
+                listed.keys().collect::<Vec<_>>()
+            );
+        }
+    }
+}

@@ -328,6 +328,31 @@ async fn malformed_uploads_get_4xx_with_reasons() {
         "malformed_json",
         "malformed JSON",
     );
+    // A point of too many numbers is as unusable as one of too few: 422 both (it was a 400
+    // "trailing characters" for one more).
+    for (body, want) in [
+        (
+            "{\"shapes\": [[[1, 2, 3, 4]]]}",
+            "invalid length 4, expected a point of 3 numbers",
+        ),
+        (
+            "{\"shapes\": [[[1, 2]]]}",
+            "invalid length 2, expected a point of 3 numbers",
+        ),
+        (
+            "{\"subjects\": [{\"views\": [[[1, 2, 3]]]}]}",
+            "invalid length 3, expected a point of 2 numbers",
+        ),
+    ] {
+        let (s, v) = json_of(post_text(body.into(), "application/json").await.unwrap()).await;
+        assert_error(
+            s,
+            &v,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid_argument",
+            want,
+        );
+    }
     let (s, v) = json_of(post_text("{}".into(), "text/plain").await.unwrap()).await;
     assert_error(
         s,
@@ -769,6 +794,41 @@ async fn the_auth_matrix() {
         "invalid_argument",
         "0 shapes",
     );
+    // The scheme in any case (RFC 9110 §11.1): the route's own answer again.
+    for scheme in ["BEARER", "bEaReR"] {
+        let r = send(
+            &on,
+            "POST",
+            &admin[0].1,
+            Some(format!("{scheme} {ADMIN_TOKEN}")),
+        )
+        .await
+        .unwrap();
+        let (s, v) = json_of(r).await;
+        assert_eq!(s, StatusCode::UNPROCESSABLE_ENTITY, "{scheme}: {v}");
+    }
+    // Two Authorization headers: refused, whichever is right (not judged by the first).
+    for pair in [
+        [format!("Bearer {ADMIN_TOKEN}"), "Bearer wrong".to_string()],
+        ["Bearer wrong".to_string(), format!("Bearer {ADMIN_TOKEN}")],
+    ] {
+        let r = c
+            .post(on.url(&admin[0].1))
+            .json(&upload)
+            .header("authorization", &pair[0])
+            .header("authorization", &pair[1])
+            .send()
+            .await
+            .unwrap();
+        let (s, v) = json_of(r).await;
+        assert_error(
+            s,
+            &v,
+            StatusCode::UNAUTHORIZED,
+            "unauthenticated",
+            "send one Authorization header",
+        );
+    }
     let (s, v) = activate(&c, &on, "2").await;
     assert_eq!(
         (s, v["version"].as_str()),
