@@ -69,6 +69,8 @@ pub struct Settings {
     pub registry_poll: Duration,
     /// This replica's name in its jobs.
     pub replica: String,
+    /// How many inactive versions of a model a retraining job leaves (`None`: all).
+    pub keep_inactive_versions: Option<usize>,
 }
 
 /// One server's state and its use cases.
@@ -80,6 +82,8 @@ pub struct App {
     pub lifecycle: Lifecycle,
     pub metrics: Metrics,
     admin: AdminToken,
+    /// `--keep-inactive-versions` (`None`: all).
+    keep_inactive: Option<usize>,
     /// Requests of the HTTP API and gRPC unary calls in progress.
     requests: Arc<Semaphore>,
     /// Open streams.
@@ -144,6 +148,8 @@ impl App {
             settings.replica.clone(),
             metrics.clone(),
         ));
+        // Jobs that died with this replica's previous run are failed now, not after a minute.
+        span.in_scope(|| crate::blocking::off_the_workers(|| jobs.recover()));
         let app = Arc::new(App {
             registry,
             jobs,
@@ -151,6 +157,7 @@ impl App {
             lifecycle: Lifecycle::new(metrics.clone()),
             metrics,
             admin: settings.admin_token.clone(),
+            keep_inactive: settings.keep_inactive_versions,
             requests: Arc::new(Semaphore::new(settings.limits.max_concurrency)),
             streams: Arc::new(Semaphore::new(settings.limits.max_streams)),
             span,
@@ -357,6 +364,7 @@ impl App {
                 registry: self.registry.clone(),
                 jobs: self.jobs.clone(),
                 span: self.span.clone(),
+                keep_inactive: self.keep_inactive,
             },
             prepared,
             slot,

@@ -106,6 +106,11 @@ pub struct ServeArgs {
     /// models folder shows; default: the host name (a pod's name in Kubernetes).
     #[arg(long, env = "FACEPOSE_REPLICA")]
     pub replica: Option<String>,
+    /// Inactive versions of a model kept once a retraining job has written a new one: the
+    /// newest N (by id) besides the active one stay for rollback, older ones are deleted;
+    /// `all` keeps every version.
+    #[arg(long, env = "FACEPOSE_KEEP_INACTIVE_VERSIONS", default_value = "10")]
+    pub keep_inactive_versions: String,
 }
 
 /// The environment variable holding the admin token (read directly, never a flag: a flag
@@ -127,6 +132,8 @@ pub struct Config {
     pub max_queued_jobs: usize,
     pub registry_poll: Duration,
     pub replica: String,
+    /// `None`: every version is kept.
+    pub keep_inactive_versions: Option<usize>,
 }
 
 impl Config {
@@ -143,6 +150,7 @@ impl Config {
             max_queued_jobs: self.max_queued_jobs,
             registry_poll: self.registry_poll,
             replica: self.replica.clone(),
+            keep_inactive_versions: self.keep_inactive_versions,
         }
     }
 }
@@ -280,6 +288,15 @@ impl ServeArgs {
         if limits.request_timeout.is_zero() {
             return Err(bad("request-timeout", "must be positive"));
         }
+        let keep_inactive_versions = match self.keep_inactive_versions.trim() {
+            "all" => None,
+            n => Some(n.parse::<usize>().map_err(|_| {
+                bad(
+                    "keep-inactive-versions",
+                    format!("{n:?}: give a number of versions (0 or more) or \"all\""),
+                )
+            })?),
+        };
         let connections = self.connection_limits()?;
         let workers = match self.workers {
             Some(w) => positive("workers", w)?,
@@ -289,6 +306,7 @@ impl ServeArgs {
             .map_err(|e| bad("log", format!("{:?}: {e}", self.log)))?;
         Ok(Config {
             addr,
+            keep_inactive_versions,
             models: self.models.clone(),
             limits,
             drain_timeout: parse_duration(&self.drain_timeout)

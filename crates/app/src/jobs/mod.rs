@@ -136,6 +136,10 @@ pub struct Job {
     /// The replica that accepted the upload and runs the job (its host name).
     #[serde(default)]
     pub replica: String,
+    /// The process id of that replica's server: with `replica`, it tells a replica that
+    /// restarts which jobs died with its previous run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pid: Option<u32>,
 }
 
 #[derive(Debug)]
@@ -333,6 +337,7 @@ impl Jobs {
             version: None,
             error: None,
             replica: self.replica.clone(),
+            pid: Some(std::process::id()),
         };
         table.insert(
             id.clone(),
@@ -351,6 +356,55 @@ impl Jobs {
         }
         self.persist(&id);
         Ok(job)
+    }
+
+    /// At start: the records of this replica's jobs that were queued or running when its
+    /// previous run stopped (a record with this replica's name and a process id that is this
+    /// process's, as after a container's restart, or of no live process) are ended as failed,
+    /// saying so, at once rather than after [`LOST_AFTER`]; their claims go with them, and old
+    /// records are swept. A live process of the same name (two servers on one host) keeps its
+    /// jobs. Returns the ids ended.
+    pub fn recover(&self) -> Vec<String> {
+        let Some(records) = &self.records else {
+            return vec![];
+        };
+        records.sweep();
+        let me = std::process::id();
+        let mut ended = Vec::new();
+        for id in records.ids() {
+            let Ok(Some(mut job)) = records.read(&id) else {
+                continue;
+            };
+            let died = job.replica == self.replica
+                && !job.state.is_finished()
+                && job
+                    .pid
+                    .is_some_and(|pid| pid == me || !records::process_alive(pid));
+            if !died || self.table().contains_key(&id) {
+                continue;
+            }
+            job.error = Some(format!(
+                "replica {} restarted while this job was {} (its process {} ended): send the \
+                 upload again",
+                job.replica,
+                job.stage.map_or(job.state.name(), JobStage::name),
+                job.pid.unwrap_or_default(),
+            ));
+            job.state = JobState::Failed;
+            job.stage = None;
+            job.updated = now_rfc3339();
+            match records.write(&job) {
+                Ok(()) => {
+                    records.clear_claim(&id);
+                    tracing::warn!(job = %id, model = %job.model, "a retraining job died with \
+                        this replica's previous run: recorded as failed");
+                    ended.push(id);
+                }
+                Err(err) => tracing::warn!(job = %id, %err, "could not record the job that died \
+                    with this replica's previous run as failed"),
+            }
+        }
+        ended
     }
 
     /// The job `id`: this replica's, else the models folder's record of another replica's.

@@ -81,6 +81,17 @@ pub fn replica_name() -> String {
     }
 }
 
+/// Whether a process `pid` exists on this host (it may be another program that reuses a dead
+/// server's id: then the job is left to [`LOST_AFTER`]).
+pub fn process_alive(pid: u32) -> bool {
+    let Ok(pid) = libc::pid_t::try_from(pid) else {
+        return false;
+    };
+    // SAFETY: signal 0 sends nothing; kill only checks that the process exists.
+    let rc = unsafe { libc::kill(pid, 0) };
+    rc == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+}
+
 impl JobRecords {
     /// The records under `models_root`, written as `replica`.
     pub fn new(models_root: &Path, replica: String) -> Self {
@@ -142,6 +153,21 @@ impl JobRecords {
             .duration_since(modified)
             .unwrap_or_default();
         Ok(Some((job, age)))
+    }
+
+    /// The ids of every record (in no order).
+    pub fn ids(&self) -> Vec<String> {
+        let Ok(entries) = fs::read_dir(&self.dir) else {
+            return vec![];
+        };
+        entries
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name().into_string().ok()?;
+                let id = name.strip_suffix(".json")?;
+                is_job_id(id).then(|| id.to_string())
+            })
+            .collect()
     }
 
     /// Marks the record of job `id` as current (its modification time), without rewriting

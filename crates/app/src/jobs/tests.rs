@@ -355,3 +355,78 @@ fn old_records_are_swept_when_a_job_is_created() {
     assert_eq!(claims.claimed(&running.id), None);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_restarted_replica_ends_the_jobs_that_died_with_its_previous_run() {
+    // Its own killed job showed as `running` for a minute after a restart.
+    let dir = records_dir("recover");
+    let replica = |name: &str| {
+        Jobs::shared(
+            4,
+            Some(JobRecords::new(&dir, name.into())),
+            name.into(),
+            Metrics::new(),
+        )
+    };
+    // Jobs of "a" left by processes: this one (a container restarted: the same pid), one that
+    // has ended, one still alive (another server on the host), and a job of "b".
+    let mut alive = std::process::Command::new("sleep")
+        .arg("30")
+        .spawn()
+        .unwrap();
+    let mut ended = std::process::Command::new("true").spawn().unwrap();
+    ended.wait().unwrap();
+    let (previous, b) = (replica("a"), replica("b"));
+    let mut jobs = Vec::new();
+    for (table, pid) in [
+        (&previous, std::process::id()),
+        (&previous, ended.id()),
+        (&previous, alive.id()),
+        (&b, std::process::id()),
+    ] {
+        let job = table.create("m", "shapes", 10, true, None).unwrap();
+        assert!(table.stage(&job.id, JobStage::Training, 0.3));
+        let mut record = JobRecords::new(&dir, "x".into())
+            .read(&job.id)
+            .unwrap()
+            .unwrap();
+        record.pid = Some(pid);
+        JobRecords::new(&dir, "x".into()).write(&record).unwrap();
+        JobRecords::new(&dir, "b".into())
+            .claim(&job.id, Claim::Cancel)
+            .unwrap();
+        jobs.push(job.id);
+    }
+    let finished = previous.create("m", "shapes", 10, true, None).unwrap();
+    previous.succeed(&finished.id);
+    drop(previous);
+    let restarted = replica("a");
+    let mut recovered = restarted.recover();
+    recovered.sort();
+    let mut want = vec![jobs[0].clone(), jobs[1].clone()];
+    want.sort();
+    assert_eq!(recovered, want);
+    let records = JobRecords::new(&dir, "c".into());
+    for id in &jobs[..2] {
+        let seen = restarted.get(id).unwrap();
+        assert_eq!((seen.state, seen.stage), (JobState::Failed, None));
+        let why = seen.error.unwrap();
+        assert!(
+            why.contains("replica a restarted while this job was training"),
+            "{why}"
+        );
+        assert_eq!(records.claimed(id), None);
+    }
+    for id in &jobs[2..] {
+        assert_eq!(restarted.get(id).unwrap().state, JobState::Running);
+        assert_eq!(records.claimed(id), Some(Claim::Cancel));
+    }
+    assert_eq!(
+        restarted.get(&finished.id).unwrap().state,
+        JobState::Succeeded
+    );
+    assert!(restarted.recover().is_empty());
+    alive.kill().unwrap();
+    let _ = alive.wait();
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -118,6 +118,22 @@ impl Registry {
         written
     }
 
+    /// Deletes the inactive versions of `name` beyond the `keep` newest
+    /// ([`versions::prune`]); logs and returns the ids deleted.
+    pub async fn prune(&self, name: &str, keep: usize) -> Result<Vec<String>, ServiceError> {
+        let dir = self.require_dir()?.to_path_buf();
+        let n = name.to_string();
+        let deleted = on_blocking_pool("pruning versions", move || {
+            versions::prune(&dir, &n, keep).map_err(version_error)
+        })
+        .await?;
+        if !deleted.is_empty() {
+            tracing::info!(model = %name, versions = ?deleted, keep, "inactive versions pruned (--keep-inactive-versions)");
+            self.refresh_catalog().await;
+        }
+        Ok(deleted)
+    }
+
     /// Deletes an inactive version of `name`.
     pub async fn delete(&self, name: &str, version: &str) -> Result<(), ServiceError> {
         let dir = self.require_dir()?.to_path_buf();

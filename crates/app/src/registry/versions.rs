@@ -453,6 +453,33 @@ pub fn delete_version(root: &Path, name: &str, version: &str) -> Result<(), Vers
     fs::remove_dir_all(&gone).map_err(io(&gone))
 }
 
+/// Deletes the inactive numbered versions of `name` beyond the `keep` newest (by id), as
+/// [`delete_version`] does: the active version, the legacy bundle and the `keep` newest others
+/// stay. A version activated or deleted meanwhile (by another replica) is left to it. Returns
+/// the ids deleted.
+pub fn prune(root: &Path, name: &str, keep: usize) -> Result<Vec<String>, VersionError> {
+    let Some(model) = scan_model(root, name)? else {
+        return Ok(vec![]);
+    };
+    let active = model.active();
+    let mut inactive: Vec<(u64, &str)> = model
+        .versions
+        .iter()
+        .filter(|v| !v.legacy && Some(v.version.as_str()) != active)
+        .filter_map(|v| Some((numeric(&v.version)?, v.version.as_str())))
+        .collect();
+    inactive.sort_unstable_by(|a, b| b.cmp(a));
+    let mut deleted = Vec::new();
+    for &(_, version) in inactive.iter().skip(keep) {
+        match delete_version(root, name, version) {
+            Ok(()) => deleted.push(version.to_string()),
+            Err(VersionError::Active { .. } | VersionError::NotFound { .. }) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(deleted)
+}
+
 /// Removes hidden temporary entries of a model folder (and its versions folder) older than
 /// `age`: interrupted writes and deletions. Returns what was removed.
 pub fn clean_stale(model_dir: &Path, age: Duration) -> Vec<PathBuf> {
@@ -582,6 +609,26 @@ mod tests {
         // An embedded version can be activated without a file.
         activate(&root, "m", "0-embedded", true).unwrap();
         fs::remove_dir_all(&root).unwrap();
+    }
+
+    #[test]
+    fn pruning_keeps_the_active_the_legacy_and_the_newest_inactive() {
+        let root = temp_root("prune");
+        let ids: Vec<String> = (0..6).map(|_| add(&root, "m")).collect();
+        assert_eq!(ids, ["1", "2", "3", "4", "5", "6"]);
+        activate(&root, "m", "2", false).unwrap();
+        // Inactive: 6 5 4 3 1; the two newest stay.
+        assert_eq!(prune(&root, "m", 2).unwrap(), ["4", "3", "1"]);
+        let m = scan_model(&root, "m").unwrap().unwrap();
+        assert_eq!(m.ids(), ["2", "5", "6"]);
+        assert_eq!(m.active(), Some("2"));
+        assert!(prune(&root, "m", 2).unwrap().is_empty());
+        // Deleted ids are never given again.
+        assert_eq!(add(&root, "m"), "7");
+        assert_eq!(prune(&root, "m", 0).unwrap(), ["7", "6", "5"]);
+        assert_eq!(scan_model(&root, "m").unwrap().unwrap().ids(), ["2"]);
+        assert!(prune(&root, "absent", 0).unwrap().is_empty());
+        let _ = fs::remove_dir_all(&root);
     }
 
     #[test]

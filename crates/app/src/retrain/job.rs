@@ -26,6 +26,8 @@ pub struct Trainer {
     pub jobs: Arc<Jobs>,
     /// The span of the server the job runs in (its log lines are the server's).
     pub span: tracing::Span,
+    /// How many inactive versions of a model to keep once a job has written one (`None`: all).
+    pub keep_inactive: Option<usize>,
 }
 
 /// Registers an accepted upload as a job and starts it; the job holds `slot` (taken with
@@ -206,6 +208,12 @@ async fn steps(
                      another version through the API"
                 ))
             })?;
+    }
+    if let Some(keep) = trainer.keep_inactive {
+        // The job's own outcome stands whatever pruning does.
+        if let Err(e) = trainer.registry.prune(&spec.model, keep).await {
+            tracing::warn!(model = %spec.model, error = %e, "could not prune inactive versions");
+        }
     }
     Ok(Some(version))
 }

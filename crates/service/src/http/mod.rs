@@ -150,6 +150,7 @@ mod tests {
             max_queued_jobs: 1,
             registry_poll: std::time::Duration::from_secs(60),
             replica: "test".into(),
+            keep_inactive_versions: None,
         };
         let runtime = tokio::runtime::Runtime::new().unwrap();
         let _enter = runtime.enter();

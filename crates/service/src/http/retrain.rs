@@ -380,6 +380,7 @@ mod tests {
             max_queued_jobs: 0,
             registry_poll: Duration::from_secs(60),
             replica: "test".into(),
+            keep_inactive_versions: None,
         };
         let st = App::with_models(
             settings,

@@ -134,6 +134,44 @@ async fn retraining_changes_the_served_model() {
     assert_eq!((s, v["version"].as_str()), (StatusCode::OK, Some("2")));
 }
 
+/// Versions written and never activated were never collected: a job leaves the newest
+/// `--keep-inactive-versions` inactive ones besides the active one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_prunes_old_inactive_versions() {
+    let dir = TempDir::new("prune");
+    for v in ["2", "3", "4"] {
+        place_default_copy(dir.path(), v);
+    }
+    let server = Server::start_admin(
+        &["--models", dir.arg(), "--keep-inactive-versions", "1"],
+        ADMIN_TOKEN,
+    );
+    let c = client();
+    let body = json!({"shapes": shapes_json(&population(40, |p| p)), "options": quick_options()});
+    let r = upload(&c, &server, &body).await;
+    assert_eq!(r.status(), StatusCode::ACCEPTED);
+    let (_, job) = json_of(r).await;
+    let job = wait_job(&c, &server, job["id"].as_str().unwrap()).await;
+    assert_eq!(
+        (job["state"].as_str(), job["version"].as_str()),
+        (Some("succeeded"), Some("5")),
+        "{job}"
+    );
+    // Active 5; of the inactive 4, 3, 2 on disk the newest stays.
+    let (_, v) = get(&c, &server, "/v1/models/default/versions").await;
+    let ids: Vec<&str> = v["versions"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v["version"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, ["1", "4", "5"], "{v}");
+    for gone in ["2", "3"] {
+        assert!(!dir.path().join("default/versions").join(gone).exists());
+    }
+    assert!(server.logs().contains("inactive versions pruned"));
+}
+
 fn load_model_default() -> facepose_core::model::PoseModel {
     facepose_core::model::default_model().unwrap().1
 }
