@@ -164,6 +164,12 @@ pub enum ServiceError {
     NoModelsFolder,
     #[error("{faces} faces in one request; the limit is {limit} (--max-batch): split the batch")]
     BatchTooLarge { faces: usize, limit: usize },
+    /// A batch refused as it arrived, at face `at_least` (the rest was not read whole).
+    #[error(
+        "at least {at_least} faces in one request; the limit is {limit} (--max-batch): split the \
+         batch"
+    )]
+    BatchOverLimit { at_least: usize, limit: usize },
     /// A request body, message or upload over its limit.
     #[error("{}", too_large(what, *size, *limit, flag, hint))]
     TooLarge {
@@ -275,7 +281,9 @@ impl ServiceError {
             | E::UnknownVersion(_)
             | E::UnknownJob { .. } => ErrorKind::NotFound,
             E::NotCancellable { .. } | E::Conflict(_) | E::NoModelsFolder => ErrorKind::Conflict,
-            E::BatchTooLarge { .. } | E::TooLarge { .. } => ErrorKind::PayloadTooLarge,
+            E::BatchTooLarge { .. } | E::BatchOverLimit { .. } | E::TooLarge { .. } => {
+                ErrorKind::PayloadTooLarge
+            }
             E::Overloaded { .. } | E::QueueFull { .. } => ErrorKind::Overloaded,
             E::Timeout { .. } | E::UploadTimeout { .. } | E::ChangeTimedOut { .. } => {
                 ErrorKind::Timeout

@@ -7,7 +7,8 @@
 //!   every accept, and the models folder's poll, fail with "Too many open files").
 //! - **A header-read timeout** (`--header-timeout`): an HTTP/1 client has that long to send a
 //!   request's headers, counted from the connection's start or the end of the previous request
-//!   (hyper's timer), so slow-header clients and idle HTTP/1 connections are closed after it.
+//!   (hyper's timer, and ours for the first byte of either protocol), so silent connections,
+//!   slow-header clients and idle HTTP/1 connections are closed after it.
 //! - **An idle timeout** (`--idle-timeout`): an HTTP/2 connection with no request or stream in
 //!   progress that long is closed gracefully (GOAWAY).
 //! - **Request headers up to [`MAX_HEADER_LIST`] on HTTP/2**, about what HTTP/1's buffer
@@ -174,7 +175,10 @@ pub async fn serve(
         };
         let (builder, router, stop) = (builder.clone(), router.clone(), stop_rx.clone());
         connections.spawn(async move {
-            serve_connection(&builder, tcp, router, limits.idle_timeout, stop).await;
+            let mut stop = stop;
+            if first_byte(&tcp, limits.header_timeout, &mut stop).await {
+                serve_connection(&builder, tcp, router, limits.idle_timeout, stop).await;
+            }
             drop(permit);
         });
     }
@@ -214,6 +218,19 @@ fn refuse(tcp: TcpStream, max: usize, refusing: &Arc<Semaphore>) {
         .await;
         drop(slot);
     });
+}
+
+/// Waits for a connection's first byte, for at most `within`: hyper's header timer starts
+/// only once a request's bytes come, so a client that sends nothing held its connection until
+/// the idle timeout. `false`: close it (silent, gone, or the server stopping).
+async fn first_byte(tcp: &TcpStream, within: Duration, stop: &mut watch::Receiver<bool>) -> bool {
+    let mut byte = [0u8; 1];
+    tokio::select! {
+        peeked = tokio::time::timeout(within, tcp.peek(&mut byte)) => {
+            matches!(peeked, Ok(Ok(n)) if n > 0)
+        }
+        _ = stop.changed() => false,
+    }
 }
 
 async fn serve_connection(

@@ -11,7 +11,9 @@ use http_body_util::BodyExt;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+use super::body_guard::{BodyGuard, Breach, MAX_TOKEN};
 use super::error::HttpError;
+use facepose_core::shape::MAX_POINTS;
 
 pub fn require_json(headers: &HeaderMap) -> Result<(), HttpError> {
     let Some(ct) = headers.get(header::CONTENT_TYPE) else {
@@ -62,6 +64,36 @@ pub async fn read_body_limited(
     flag: &'static str,
     hint: &'static str,
 ) -> Result<Bytes, HttpError> {
+    read_chunks(headers, body, limit, flag, hint, None).await
+}
+
+/// [`read_body`] for a pose body, checked by `guard` as it arrives: a body that crosses one of
+/// its limits is refused there (drained within bounds, as an over-limit body), not read whole.
+pub async fn read_guarded_body(
+    headers: &HeaderMap,
+    body: Body,
+    limit: usize,
+    guard: &mut BodyGuard,
+) -> Result<Bytes, HttpError> {
+    read_chunks(
+        headers,
+        body,
+        limit,
+        "--max-body",
+        "split the batch",
+        Some(guard),
+    )
+    .await
+}
+
+async fn read_chunks(
+    headers: &HeaderMap,
+    body: Body,
+    limit: usize,
+    flag: &'static str,
+    hint: &'static str,
+    mut guard: Option<&mut BodyGuard>,
+) -> Result<Bytes, HttpError> {
     let too_large = |size: Option<u64>| {
         HttpError::Service(ServiceError::TooLarge {
             what: "request body",
@@ -96,11 +128,21 @@ pub async fn read_body_limited(
             drain(body, seen as u64).await;
             return Err(too_large(None));
         }
+        if let Some(g) = guard.as_deref_mut()
+            && let Err(breach) = g.feed(&data)
+        {
+            // Thrown away unparsed, up to the body limit (what a client sends before it
+            // reads the answer), so that it reads the answer rather than a reset.
+            drain_up_to(body, seen as u64, DRAIN_LIMIT.max(limit as u64)).await;
+            return Err(breach_error(breach, g));
+        }
         match &first {
             None => first = Some(data),
             Some(f) => {
                 if rest.is_empty() {
-                    rest.reserve(declared.map_or(2 * f.len(), |n| n as usize));
+                    // What the client declares, within reason: the pages are touched only
+                    // as the body arrives, but a guarded body may stop long before.
+                    rest.reserve(declared.map_or(2 * f.len(), |n| (n as usize).min(1 << 20)));
                     rest.extend_from_slice(f);
                 }
                 rest.extend_from_slice(&data);
@@ -135,11 +177,35 @@ fn declared_length(headers: &HeaderMap) -> Option<u64> {
         .and_then(|v| v.parse::<u64>().ok())
 }
 
+/// What a body that crossed a guard's limit gets: 413 for too many faces, 422 for the rest.
+fn breach_error(breach: Breach, guard: &BodyGuard) -> HttpError {
+    match breach {
+        Breach::Faces => ServiceError::BatchOverLimit {
+            at_least: guard.faces(),
+            limit: guard.max_faces().unwrap_or_default(),
+        }
+        .into(),
+        Breach::Points { face } => HttpError::invalid(format!(
+            "{}landmarks: more than {MAX_POINTS} landmarks, the most a scheme may have",
+            face.map_or(String::new(), |i| format!("faces[{i}].")),
+        )),
+        Breach::Token => HttpError::invalid(format!(
+            "a string or number of more than {} KiB: names have at most 64 characters",
+            MAX_TOKEN / 1024
+        )),
+    }
+}
+
 /// Reads and discards the rest of a body, up to [`DRAIN_LIMIT`] bytes in all (counting `seen`)
 /// and [`DRAIN_TIME`].
-async fn drain(mut body: Body, mut seen: u64) {
+async fn drain(body: Body, seen: u64) {
+    drain_up_to(body, seen, DRAIN_LIMIT).await;
+}
+
+/// [`drain`] up to `max` bytes.
+async fn drain_up_to(mut body: Body, mut seen: u64, max: u64) {
     let _ = tokio::time::timeout(DRAIN_TIME, async {
-        while seen <= DRAIN_LIMIT {
+        while seen <= max {
             match body.frame().await {
                 Some(Ok(frame)) => {
                     seen += frame.data_ref().map_or(0, |d| d.len() as u64);

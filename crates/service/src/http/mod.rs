@@ -11,6 +11,7 @@
 //!   metrics and logs.
 
 pub mod body;
+pub mod body_guard;
 pub mod error;
 pub mod middleware;
 pub mod models;

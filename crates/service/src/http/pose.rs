@@ -16,7 +16,8 @@ use facepose_app::pose::{FaceSpec, estimate_face, for_each_face};
 use facepose_app::registry::ModelSet;
 use facepose_app::{App, Limits};
 
-use super::body::{json_bytes, parse_json, read_body, require_json, to_json};
+use super::body::{json_bytes, parse_json, read_guarded_body, require_json, to_json};
+use super::body_guard::{BodyGuard, BodyKind};
 use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
 use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
@@ -73,7 +74,8 @@ pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response,
     // The request whole rather than a `HeaderMap` extractor, which would copy the headers.
     let (parts, body) = req.into_parts();
     require_json(&parts.headers)?;
-    let bytes = read_body(&parts.headers, body, app.limits.max_body).await?;
+    let mut guard = BodyGuard::new(BodyKind::Pose);
+    let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
     let req = parse_pose_request(&bytes)?;
     let models = app.models();
     let model = models.get(req.model.as_deref())?;
@@ -125,7 +127,10 @@ pub async fn pose_batch(
 ) -> Result<Response, HttpError> {
     let (parts, body) = req.into_parts();
     require_json(&parts.headers)?;
-    let bytes = read_body(&parts.headers, body, app.limits.max_body).await?;
+    let mut guard = BodyGuard::new(BodyKind::Batch {
+        max_faces: app.limits.max_batch,
+    });
+    let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
     let models = app.models();
     let limits = app.limits;
     let inline = bytes.len() <= INLINE_BODY;

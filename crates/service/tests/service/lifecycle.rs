@@ -150,6 +150,13 @@ async fn slow_headers_and_idle_http1_connections_are_closed_after_the_header_tim
     let (answer, closed) = read_until_closed(&mut idle, Duration::from_secs(3));
     assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
     assert!(closed, "an idle HTTP/1 connection stayed open for 3 s");
+    // A connection that never sends a byte (it stayed until the idle timeout, 120 s).
+    let mut silent = std::net::TcpStream::connect(server.addr).unwrap();
+    let (answer, closed) = read_until_closed(&mut silent, Duration::from_secs(3));
+    assert!(
+        closed && answer.is_empty(),
+        "a silent connection stayed open for 3 s"
+    );
 }
 
 /// Plays a silent HTTP/2 client on `s` until the server closes it or `limit` passes: whether a
