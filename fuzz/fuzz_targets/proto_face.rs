@@ -1,9 +1,12 @@
 //! The hand-coded protobuf messages (`Face`, within `EstimateRequest`) against prost's derived
 //! code for the same `.proto`: the same messages accepted, the same values read. And the
-//! codec's walk before decoding never panics on any bytes.
+//! codec's walk before decoding never panics on any bytes; the guard that checks a call's
+//! body as it arrives gives the same verdict however the body is cut, and agrees with the
+//! codec's walk on a message within its limits.
 #![no_main]
 
 use facepose_service::grpc::codec::{Bounded, DecodeLimits};
+use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::proto;
 use libfuzzer_sys::fuzz_target;
 use prost::Message;
@@ -31,8 +34,33 @@ fn same_face(a: &proto::Face, b: &reference::Face) {
     assert_eq!(a.camera.is_some(), b.camera.is_some());
 }
 
+/// The guard's verdict on `data` as one uncompressed message of `rpc`, fed in `chunk`s.
+fn guarded(rpc: Rpc, data: &[u8], chunk: usize) -> bool {
+    let mut body = vec![0];
+    body.extend_from_slice(&(data.len() as u32).to_be_bytes());
+    body.extend_from_slice(data);
+    let mut g = FrameGuard::new(rpc, 8);
+    let mut ok = true;
+    for c in body.chunks(chunk) {
+        ok = g.feed(c).is_ok();
+    }
+    ok
+}
+
 fuzz_target!(|data: &[u8]| {
     let limits = DecodeLimits { max_batch: 8 };
+    let chunk = 1 + data.first().map_or(0, |&b| b as usize % 13);
+    for rpc in [Rpc::Estimate, Rpc::EstimateBatch, Rpc::EstimateStream] {
+        assert_eq!(guarded(rpc, data, chunk), guarded(rpc, data, data.len() + 5));
+    }
+    // What the guard refuses, the codec's walk (or prost) refuses too.
+    if !guarded(Rpc::EstimateBatch, data, chunk) && data.len() < 60_000 {
+        assert!(
+            proto::EstimateBatchRequest::check(data, &limits).is_err()
+                || proto::EstimateBatchRequest::decode(data).is_err(),
+            "the guard refused a batch the codec takes"
+        );
+    }
     let _ = proto::EstimateRequest::check(data, &limits);
     let _ = proto::EstimateBatchRequest::check(data, &limits);
     let _ = proto::Frame::check(data, &limits);

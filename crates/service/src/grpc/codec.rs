@@ -36,7 +36,7 @@ use crate::proto;
 pub const REFUSED_BEFORE_DECODING: &str = "x-facepose-refused-by-codec";
 
 /// A status of the codec, marked as such.
-fn marked(mut status: Status) -> Status {
+pub(super) fn marked(mut status: Status) -> Status {
     status.metadata_mut().insert(
         REFUSED_BEFORE_DECODING,
         tonic::metadata::MetadataValue::from_static("1"),

@@ -1,5 +1,6 @@
-//! What wraps every `facepose.v1.PoseService` call before tonic sees it: the server's limits for
-//! the codec ([`DecodeLimits`]), and the failures that happen before a handler runs (a message
+//! What wraps every `facepose.v1.PoseService` call before tonic sees it: the pose calls' limits
+//! checked on their bytes as they arrive ([`super::frame_guard`]), the server's limits for the
+//! codec ([`DecodeLimits`]), and the failures that happen before a handler runs (a message
 //! over `--max-body`, a message that does not decode or is over its limits) mapped like the
 //! rest and counted in `facepose_grpc_requests_total`, which the handlers count otherwise.
 
@@ -13,6 +14,8 @@ use tonic::Status;
 
 use super::codec::{DecodeLimits, REFUSED_BEFORE_DECODING};
 use super::error::{code_name, is_too_large, too_large_message};
+use super::frame_guard::{FrameGuard, GuardedBody, Rpc};
+use axum::body::Body;
 
 /// The RPCs of `facepose.v1.PoseService`, by the last segment of their path.
 pub const RPCS: [&str; 12] = [
@@ -44,6 +47,16 @@ pub async fn edge(State(app): State<Arc<App>>, req: Request, next: Next) -> Resp
     let rpc = rpc_label(req.uri().path());
     let limits = DecodeLimits {
         max_batch: app.limits.max_batch,
+    };
+    // The pose calls' messages are checked as they arrive, before tonic holds them whole.
+    let req = match Rpc::of(req.uri().path()) {
+        Some(call) => req.map(|body| {
+            Body::new(GuardedBody::new(
+                body,
+                FrameGuard::new(call, limits.max_batch),
+            ))
+        }),
+        None => req,
     };
     let mut resp = limits.scope(next.run(req)).await;
     // A status in the headers is a call that failed without a body: tonic's own checks and

@@ -11,6 +11,7 @@ pub mod codec;
 pub mod convert;
 pub mod edge;
 pub mod error;
+pub mod frame_guard;
 pub mod health;
 pub mod retrain;
 pub mod stream;
