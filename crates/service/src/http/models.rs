@@ -88,7 +88,8 @@ pub async fn list_versions(
 /// back is activating an older version.
 #[utoipa::path(post, path = "/v1/models/{name}/versions/{version}", tag = "registry",
     params(("name" = String, Path, description = "The model's folder name"),
-           ("version" = String, Path, description = "`<version>:activate`, e.g. `3:activate`")),
+           ("version" = String, Path, description = "`<version>:activate`, e.g. `3:activate`",
+            pattern = "^[^:/]+:activate$")),
     security(("admin_token" = [])),
     responses(
         (status = 200, description = "Active and served here; other replicas follow within --registry-poll", body = ActivateResponse),

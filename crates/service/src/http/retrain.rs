@@ -13,10 +13,12 @@ use facepose_app::error::ServiceError;
 use facepose_app::jobs::{Cancel, Job};
 use facepose_app::retrain::{RawGrid, RawOptions, RawUpload, SchemeSpec, UploadData};
 use facepose_core::model::bundle::sha256_hex;
+use facepose_core::shape::MAX_POINTS;
 use facepose_core::shape::Scheme;
 use serde::Deserialize;
 use serde::de::{Error as _, IgnoredAny, SeqAccess, Visitor};
 use utoipa::ToSchema;
+use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, OneOfBuilder, SchemaType, Type};
 
 use super::body::{discard_body, parse_json, read_body_limited, require_json};
 use super::error::{ErrorBody, HttpError};
@@ -58,16 +60,74 @@ impl<'de, const N: usize> Deserialize<'de> for Coords<N> {
     }
 }
 
+/// An array of points of `n` numbers (each `null` too if `missing`), per shape or view, and
+/// `null` too if `optional`.
+fn sets_of_points(n: usize, missing: bool, optional: bool) -> ArrayBuilder {
+    let kinds = |null: bool| {
+        let mut k = vec![Type::Array];
+        if null {
+            k.push(Type::Null);
+        }
+        SchemaType::from_iter(k)
+    };
+    let point = ArrayBuilder::new()
+        .schema_type(kinds(missing))
+        .items(ObjectBuilder::new().schema_type(Type::Number))
+        .min_items(Some(n))
+        .max_items(Some(n));
+    let set = ArrayBuilder::new().items(point).max_items(Some(MAX_POINTS));
+    ArrayBuilder::new().schema_type(kinds(optional)).items(set)
+}
+
+fn shapes_schema() -> ArrayBuilder {
+    sets_of_points(3, false, true)
+}
+
+fn views_schema() -> ArrayBuilder {
+    sets_of_points(2, true, false)
+}
+
+/// A built-in scheme's name or a scheme definition.
+fn scheme_schema() -> OneOfBuilder {
+    OneOfBuilder::new()
+        .item(
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .max_length(Some(64)),
+        )
+        .item(ObjectBuilder::new().schema_type(Type::Object))
+        .item(ObjectBuilder::new().schema_type(Type::Null))
+        .description(Some(
+            "A built-in scheme name (default `ibug68`) or a scheme definition (docs/FORMATS.md).",
+        ))
+}
+
+/// `"wide"`, `"paper"` or a [`CustomGrid`] object.
+fn grid_schema() -> OneOfBuilder {
+    OneOfBuilder::new()
+        .item(
+            ObjectBuilder::new()
+                .schema_type(Type::String)
+                .enum_values(Some(["wide", "paper"])),
+        )
+        .item(ObjectBuilder::new().schema_type(Type::Object))
+        .item(ObjectBuilder::new().schema_type(Type::Null))
+        .description(Some(
+            "`wide` (default: coarse yaw ±90° / pitch ±60° at 6° and five yaw bins at 2°), \
+             `paper` (yaw and pitch ±40° at 2°), or a CustomGrid object.",
+        ))
+}
+
 /// One subject of a multi-view upload: its views, each one `[x, y]` (image pixels) or `null`
 /// per point of the scheme.
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SubjectUpload {
-    /// Echoed nowhere; for the client's bookkeeping.
+    /// Any JSON value, echoed nowhere; for the client's bookkeeping.
     #[serde(default)]
-    #[schema(value_type = Option<Object>)]
+    #[schema(value_type = Option<Value>)]
     pub id: Option<serde_json::Value>,
-    #[schema(value_type = Vec<Vec<Option<Vec<f64>>>>)]
+    #[schema(schema_with = views_schema)]
     pub views: Vec<Vec<Option<Coords<2>>>>,
 }
 
@@ -75,12 +135,12 @@ pub struct SubjectUpload {
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct GridUpload {
-    #[schema(value_type = Vec<f64>)]
+    #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
     pub yaw: [f64; 3],
-    #[schema(value_type = Vec<f64>)]
+    #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
     pub pitch: [f64; 3],
     #[serde(default)]
-    #[schema(value_type = Option<Vec<f64>>)]
+    #[schema(value_type = Option<Vec<f64>>, min_items = 3, max_items = 3)]
     pub roll: Option<[f64; 3]>,
 }
 
@@ -110,7 +170,7 @@ pub struct TrainingOptions {
     /// `"wide"` (default: coarse yaw ±90° / pitch ±60° at 6° and five yaw bins at 2°),
     /// `"paper"` (yaw and pitch ±40° at 2°), or a [`CustomGrid`] object.
     #[serde(default)]
-    #[schema(value_type = Option<Object>)]
+    #[schema(schema_with = grid_schema)]
     pub grid: Option<serde_json::Value>,
     /// Candidate ridge parameters; default 1e-7 ... 1e-3.
     #[serde(default)]
@@ -142,11 +202,11 @@ pub struct RetrainRequest {
     pub model: Option<String>,
     /// A built-in scheme name (default `ibug68`) or a scheme definition (docs/FORMATS.md).
     #[serde(default)]
-    #[schema(value_type = Option<Object>)]
+    #[schema(schema_with = scheme_schema)]
     pub scheme: Option<serde_json::Value>,
     /// 3D shapes: one `[x, y, z]` per point of the scheme (model frame, mm).
     #[serde(default)]
-    #[schema(value_type = Option<Vec<Vec<Vec<f64>>>>)]
+    #[schema(schema_with = shapes_schema)]
     pub shapes: Option<Vec<Vec<Coords<3>>>>,
     /// Or several 2D views per subject, rebuilt by structure from motion.
     #[serde(default)]
@@ -324,7 +384,7 @@ pub async fn get_job(
 /// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
 /// trains; a running one stops at its next stage, before its version is written.
 #[utoipa::path(post, path = "/v1/models/jobs/{id}", tag = "registry",
-    params(("id" = String, Path, description = "`<id>:cancel`")),
+    params(("id" = String, Path, description = "`<id>:cancel`", pattern = "^[0-9a-f]{32}:cancel$")),
     security(("admin_token" = [])),
     responses(
         (status = 200, description = "Cancelled (state `cancelled`)", body = Job),

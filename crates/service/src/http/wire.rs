@@ -5,6 +5,8 @@
 use facepose_app::views::{ModelView, ModelsView, VersionView, VersionsView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::bundle::Provenance;
+use facepose_core::pose::{LandmarkStyle, Method};
+use facepose_core::record::MAX_COORDINATE;
 use facepose_core::record::{Landmarks, PoseRecord};
 use facepose_core::shape::MAX_POINTS;
 use serde::{Deserialize, Serialize};
@@ -21,7 +23,9 @@ use super::error::ErrorObject;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Camera {
+    #[schema(exclusive_minimum = 0.0)]
     pub fx: f64,
+    #[schema(exclusive_minimum = 0.0)]
     pub fy: f64,
     pub cx: f64,
     pub cy: f64,
@@ -98,32 +102,69 @@ impl utoipa::PartialSchema for FaceId {
 
 impl ToSchema for FaceId {}
 
-/// The schema of a landmark list: at most [`MAX_POINTS`] entries, each `[x, y]` or `null`.
+/// The schema of a landmark list: at most [`MAX_POINTS`] entries, each `[x, y]` (pixels,
+/// within ±1e9) or `null`.
 fn landmarks_schema() -> ArrayBuilder {
+    let coordinate = ObjectBuilder::new()
+        .schema_type(Type::Number)
+        .minimum(Some(-MAX_COORDINATE))
+        .maximum(Some(MAX_COORDINATE));
     let point = ArrayBuilder::new()
         .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
-        .items(ObjectBuilder::new().schema_type(Type::Number))
+        .items(coordinate)
         .min_items(Some(2))
         .max_items(Some(2));
     ArrayBuilder::new().items(point).max_items(Some(MAX_POINTS))
 }
 
+/// A name among `names`, or empty or absent for the default (`default`).
+fn names_schema(names: &[&str], default: &str, what: &str) -> ObjectBuilder {
+    ObjectBuilder::new()
+        .schema_type(SchemaType::from_iter([Type::String, Type::Null]))
+        .enum_values(Some(
+            [serde_json::Value::Null, "".into()]
+                .into_iter()
+                .chain(names.iter().map(|&n| n.into())),
+        ))
+        .description(Some(format!("{what}; empty or absent: `{default}`")))
+}
+
+fn method_schema() -> ObjectBuilder {
+    names_schema(&Method::NAMES, "auto", "The estimation method")
+}
+
+fn style_schema() -> ObjectBuilder {
+    names_schema(
+        &LandmarkStyle::NAMES,
+        "projected",
+        "How the landmarks were made",
+    )
+}
+
 /// `POST /v1/pose`: one face.
 #[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
+#[schema(example = json!({
+    "landmarks": [[301, 240], [341, 240], [321, 265], [305, 290], [337, 290]],
+    "scheme": "five",
+    "id": "face-17"
+}))]
 pub struct PoseRequest {
     /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a
     /// point that could not be found.
-    #[schema(schema_with = landmarks_schema, example = json!([[231.5, 310.0], null]))]
+    #[schema(schema_with = landmarks_schema)]
     pub landmarks: Landmarks,
     /// The landmark scheme (`ibug68`, `inner51`, `five`, ...); default: the model's own.
     #[serde(default)]
+    #[schema(max_length = 64)]
     pub scheme: Option<String>,
     /// `auto` (default), `fit`, `fit-shape`, `regression` or `geometry`.
     #[serde(default)]
+    #[schema(schema_with = method_schema)]
     pub method: Option<String>,
     /// The model by name; default: `default`.
     #[serde(default)]
+    #[schema(max_length = 64)]
     pub model: Option<String>,
     /// Camera intrinsics: the fit methods then refine the pose under full perspective.
     #[serde(default)]
@@ -132,6 +173,7 @@ pub struct PoseRequest {
     /// projection, as 3D-style annotations and 3DMM fitters give) or `contour` (2D-style, as
     /// 300-W / dlib: hidden jaw points sit on the visible outline and the fit leaves them out).
     #[serde(default)]
+    #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
     /// Echoed in the response.
     #[serde(default)]
@@ -159,12 +201,15 @@ pub struct BatchFace {
     #[schema(schema_with = landmarks_schema)]
     pub landmarks: Landmarks,
     #[serde(default)]
+    #[schema(max_length = 64)]
     pub scheme: Option<String>,
     #[serde(default)]
+    #[schema(schema_with = method_schema)]
     pub method: Option<String>,
     #[serde(default)]
     pub camera: Option<Camera>,
     #[serde(default)]
+    #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
     #[serde(default)]
     pub id: Option<FaceId>,
@@ -173,19 +218,30 @@ pub struct BatchFace {
 /// `POST /v1/pose:batch`: many faces, at most `--max-batch` (1000 by default).
 #[derive(Debug, Default, PartialEq, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
+#[schema(example = json!({
+    "scheme": "five",
+    "faces": [
+        {"landmarks": [[301, 240], [341, 240], [321, 265], [305, 290], [337, 290]], "id": 1},
+        {"landmarks": [[290, 238], [333, 242], [309, 266], [296, 289], [329, 292]], "id": 2}
+    ]
+}))]
 pub struct BatchRequest {
     pub faces: Vec<BatchFace>,
     /// Defaults for every face.
     #[serde(default)]
+    #[schema(max_length = 64)]
     pub scheme: Option<String>,
     #[serde(default)]
+    #[schema(schema_with = method_schema)]
     pub method: Option<String>,
     #[serde(default)]
     pub camera: Option<Camera>,
     #[serde(default)]
+    #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
     /// One model for the whole batch; default: `default`.
     #[serde(default)]
+    #[schema(max_length = 64)]
     pub model: Option<String>,
 }
 

@@ -697,6 +697,47 @@ async fn the_document_describes_ids_landmarks_and_path_errors() {
             "{schema}: {l}"
         );
     }
+    // Values the server takes are valid, and values it refuses are not, where a schema can say.
+    let pose = &schemas["PoseRequest"]["properties"];
+    let methods = pose["method"]["enum"].as_array().unwrap();
+    for m in ["auto", "fit", "fit-shape", "regression", "geometry", ""] {
+        assert!(methods.contains(&json!(m)), "{m} not in {methods:?}");
+    }
+    assert_eq!(pose["scheme"]["maxLength"], 64);
+    assert_eq!(
+        schemas["Camera"]["properties"]["fx"]["exclusiveMinimum"],
+        0.0
+    );
+    let example = &schemas["PoseRequest"]["example"];
+    let r = c
+        .post(server.url("/v1/pose"))
+        .json(example)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        r.status(),
+        StatusCode::OK,
+        "the document's example: {example}"
+    );
+    let upload = &schemas["RetrainRequest"]["properties"];
+    let kinds: Vec<&Value> = upload["scheme"]["oneOf"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| &b["type"])
+        .collect();
+    assert!(kinds.contains(&&json!("string")), "{kinds:?}");
+    assert_eq!(
+        upload["shapes"]["items"]["items"]["minItems"], 3,
+        "{}",
+        upload["shapes"]
+    );
+    let activate = &doc["paths"]["/v1/models/{name}/versions/{version}"]["post"]["parameters"][1];
+    assert_eq!(
+        activate["schema"]["pattern"], "^[^:/]+:activate$",
+        "{activate}"
+    );
     // Bad names on every route with path parameters: the status is one the document lists.
     let long = "m".repeat(65);
     let routes = [
