@@ -39,7 +39,7 @@ fn guarded(rpc: Rpc, data: &[u8], chunk: usize) -> bool {
     let mut body = vec![0];
     body.extend_from_slice(&(data.len() as u32).to_be_bytes());
     body.extend_from_slice(data);
-    let mut g = FrameGuard::new(rpc, 8);
+    let mut g = FrameGuard::new(rpc, 8).scanning_from(0);
     let mut ok = true;
     for c in body.chunks(chunk) {
         ok = g.feed(c).is_ok();

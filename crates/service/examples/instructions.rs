@@ -20,7 +20,9 @@ use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
+use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::landmark_messages;
+use facepose_service::http::body_guard::{BodyGuard, BodyKind};
 use facepose_service::http::pose::parse_pose_request;
 use facepose_service::proto;
 use nalgebra::Vector2;
@@ -30,7 +32,7 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 
 /// What can be counted.
-const ENTRIES: [&str; 10] = [
+const ENTRIES: [&str; 12] = [
     "none",
     "fit",
     "fit-shape",
@@ -41,6 +43,8 @@ const ENTRIES: [&str; 10] = [
     "estimate-face-fit",
     "grpc-decode-landmarks",
     "grpc-decode-xy",
+    "guard-pose-body",
+    "guard-grpc-landmarks",
 ];
 
 fn main() {
@@ -124,6 +128,9 @@ fn main() {
         xy: xy.iter().flatten().copied().collect(),
         ..grpc_face
     });
+    let mut framed = vec![0];
+    framed.extend_from_slice(&(with_messages.len() as u32).to_be_bytes());
+    framed.extend_from_slice(&with_messages);
     // Warm the regression's per-pattern cache, as a service is after its first query.
     let _ = estimate(&model, "ibug68", &lm, Method::Regression);
     for _ in 0..calls {
@@ -155,6 +162,15 @@ fn main() {
             "grpc-decode-xy" => drop(black_box(
                 proto::EstimateRequest::decode(black_box(packed.as_slice())).unwrap(),
             )),
+            // The checks of a body as it arrives, on every byte (as for a body over 16 KiB).
+            "guard-pose-body" => {
+                let mut g = BodyGuard::new(BodyKind::Pose);
+                let _ = black_box(g.feed(black_box(body.as_bytes())));
+            }
+            "guard-grpc-landmarks" => {
+                let mut g = FrameGuard::new(Rpc::Estimate, 1000).scanning_from(0);
+                drop(black_box(g.feed(black_box(&framed))));
+            }
             _ => {}
         }
     }

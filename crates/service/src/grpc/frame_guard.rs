@@ -7,8 +7,9 @@
 //! crosses a limit, with the status the codec would give.
 //!
 //! The guard follows the gRPC framing (a flag byte, a 4-byte length, the message) and walks
-//! each message's fields and its faces' fields, skipping every other value in bulk; it keeps
-//! no values. On anything malformed or compressed it skips to the message's end and leaves the
+//! each message of [`SCAN_FROM`] bytes or more (a shorter one costs little however it is
+//! made, and is passed over whole) through its fields and its faces' fields, skipping every
+//! other value in bulk; it keeps no values. On anything malformed or compressed it skips to the message's end and leaves the
 //! message to the codec and prost, which say what is wrong.
 
 use std::pin::Pin;
@@ -20,7 +21,7 @@ use facepose_core::shape::MAX_POINTS;
 use http_body::{Frame, SizeHint};
 use tonic::Status;
 
-use super::codec::marked;
+use super::codec::{SCAN_FROM, marked};
 use super::error;
 
 /// The most bytes of a string field of a pose message: far above any name (64 characters) or
@@ -104,6 +105,8 @@ pub struct FrameGuard {
     missing: u64,
     /// The status to end the call with, once a limit is crossed.
     breach: Option<Status>,
+    /// Messages shorter than this are passed over.
+    scan_from: u64,
 }
 
 impl FrameGuard {
@@ -123,7 +126,15 @@ impl FrameGuard {
             doubles: 0,
             missing: 0,
             breach: None,
+            scan_from: SCAN_FROM as u64,
         }
+    }
+
+    /// The guard walking messages from `bytes` long up ([`SCAN_FROM`] by default), e.g. every
+    /// message (0) for tests.
+    pub fn scanning_from(mut self, bytes: u64) -> Self {
+        self.scan_from = bytes;
+        self
     }
 
     /// Reads the next bytes of the body; the status to end the call with once a limit is
@@ -233,7 +244,8 @@ impl FrameGuard {
         });
         match (self.prefix[0], len) {
             (_, 0) => Step::Prefix { got: 0 },
-            (0, _) => Step::Key,
+            // A short message costs little however it is made (the codec's rule too).
+            (0, len) if len >= self.scan_from => Step::Key,
             // Compressed: its faces are the codec's to count once it is decompressed.
             _ => Step::Skip {
                 left: len,
@@ -432,7 +444,7 @@ mod tests {
 
     /// The guard's verdict on `bytes` fed in chunks of `chunk`.
     fn verdict(rpc: Rpc, max: usize, bytes: &[u8], chunk: usize) -> Result<(), Code> {
-        let mut g = FrameGuard::new(rpc, max);
+        let mut g = FrameGuard::new(rpc, max).scanning_from(0);
         let mut last = Ok(());
         for c in bytes.chunks(chunk.max(1)) {
             last = g.feed(c).map_err(|s| s.code());
@@ -509,6 +521,16 @@ mod tests {
             assert_eq!(v(s, 3, &[frame(3), frame(3), frame(0)]), Ok(()));
             assert_eq!(v(s, 3, &[frame(3), frame(4)]), Err(Code::ResourceExhausted));
         }
+    }
+
+    #[test]
+    fn short_messages_are_passed_over() {
+        let over = body(&[batch(vec![face(0, 0, ""); 5], "")]);
+        let mut g = FrameGuard::new(Rpc::EstimateBatch, 2);
+        assert!(g.feed(&over).is_ok());
+        let long = body(&[batch(vec![face(0, 0, ""); SCAN_FROM / 2], "")]);
+        let mut g = FrameGuard::new(Rpc::EstimateBatch, 2);
+        assert_eq!(g.feed(&long).unwrap_err().code(), Code::ResourceExhausted);
     }
 
     #[test]

@@ -37,6 +37,8 @@ pub enum Breach {
     Points { face: Option<usize> },
     /// A string or number of more than [`MAX_TOKEN`] bytes.
     Token,
+    /// A string or an object among a face's landmarks; the face's index in a batch.
+    NotALandmark { face: Option<usize> },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,6 +72,11 @@ enum State {
     Str { key: bool, escaped: bool },
     /// In a number or a literal (`true`, `null`, ...).
     Scalar,
+    /// In a counted `landmarks` array, `depth` arrays down (0: between its elements), where
+    /// only its elements are counted: a landmark is `[x, y]` or `null`, so a string or an
+    /// object there is refused at once, and nothing else needs the tokenizer. `expect`: an
+    /// element may start (after `[` or `,`).
+    Points { depth: u32, expect: bool },
     /// Not JSON, or too deep: the parser will say why.
     GaveUp,
 }
@@ -120,13 +127,47 @@ impl BodyGuard {
     /// Reads the next bytes of the body: the first breach, once it is crossed (and again for
     /// every later chunk, which it no longer reads).
     pub fn feed(&mut self, bytes: &[u8]) -> Result<(), Breach> {
-        for &b in bytes {
-            if self.state == State::GaveUp || self.breach.is_some() {
-                break;
+        let mut i = 0;
+        // Numbers and string contents, most of a body, are passed over in runs; the rest
+        // byte by byte.
+        while i < bytes.len() && self.breach.is_none() {
+            match self.state {
+                State::GaveUp => break,
+                State::Scalar => {
+                    let run = run_len(&bytes[i..], is_scalar_byte);
+                    self.grow_token(run);
+                    i += run;
+                    if i < bytes.len() {
+                        self.state = State::After;
+                    }
+                }
+                State::Points { .. } => i += self.points(&bytes[i..]),
+                State::Str {
+                    key: false,
+                    escaped: false,
+                } => {
+                    let run = run_len(&bytes[i..], |b| b != b'"' && b != b'\\');
+                    self.grow_token(run);
+                    i += run;
+                    if let Some(&b) = bytes.get(i) {
+                        self.byte(b);
+                        i += 1;
+                    }
+                }
+                _ => {
+                    self.byte(bytes[i]);
+                    i += 1;
+                }
             }
-            self.byte(b);
         }
         self.breach.map_or(Ok(()), Err)
+    }
+
+    fn grow_token(&mut self, n: usize) {
+        self.token += n;
+        if self.token > MAX_TOKEN {
+            self.crossed(Breach::Token);
+        }
     }
 
     fn crossed(&mut self, breach: Breach) {
@@ -166,7 +207,7 @@ impl BodyGuard {
                 }
             }
             State::Scalar => {
-                if b.is_ascii_alphanumeric() || matches!(b, b'-' | b'+' | b'.') {
+                if is_scalar_byte(b) {
                     self.token += 1;
                     if self.token > MAX_TOKEN {
                         self.crossed(Breach::Token);
@@ -203,7 +244,7 @@ impl BodyGuard {
                 (b'}', Some(Open::Object(_))) | (b']', Some(Open::Array { .. })) => self.close(),
                 _ => self.state = State::GaveUp,
             },
-            State::GaveUp => {}
+            State::GaveUp | State::Points { .. } => {}
         }
     }
 
@@ -266,7 +307,14 @@ impl BodyGuard {
             }
             b'[' => {
                 self.stack.push(Open::Array { counted, len: 0 });
-                self.state = State::Value;
+                self.state = if counted == Counted::Landmarks {
+                    State::Points {
+                        depth: 0,
+                        expect: true,
+                    }
+                } else {
+                    State::Value
+                };
             }
             b'"' => {
                 self.token = 0;
@@ -283,6 +331,66 @@ impl BodyGuard {
         }
     }
 
+    /// The face a breach is in: `None` for a single pose.
+    fn face(&self) -> Option<usize> {
+        match self.kind {
+            BodyKind::Pose => None,
+            BodyKind::Batch { .. } => Some(self.faces.saturating_sub(1)),
+        }
+    }
+
+    /// Reads the bytes of a `landmarks` array (see [`State::Points`]) until it closes or
+    /// `bytes` end; the bytes used.
+    fn points(&mut self, bytes: &[u8]) -> usize {
+        let State::Points {
+            mut depth,
+            mut expect,
+        } = self.state
+        else {
+            return 0;
+        };
+        let mut i = 0;
+        while i < bytes.len() && self.breach.is_none() {
+            let b = bytes[i];
+            let starts = depth == 0 && expect && !b.is_ascii_whitespace();
+            if starts && !matches!(b, b']' | b',') {
+                expect = false;
+                if let Some(Open::Array { len, .. }) = self.stack.last_mut() {
+                    *len += 1;
+                    if *len > facepose_core::shape::MAX_POINTS {
+                        self.crossed(Breach::Points { face: self.face() });
+                        break;
+                    }
+                }
+            }
+            if is_scalar_byte(b) {
+                let run = run_len(&bytes[i..], is_scalar_byte);
+                self.grow_token(run);
+                i += run;
+                continue;
+            }
+            self.token = 0;
+            match b {
+                b'[' => depth += 1,
+                b']' if depth == 0 => {
+                    self.close();
+                    return i + 1;
+                }
+                b']' => depth -= 1,
+                b',' if depth == 0 => expect = true,
+                b'"' | b'{' => self.crossed(Breach::NotALandmark { face: self.face() }),
+                b if b.is_ascii_whitespace() || b == b',' => {}
+                _ => {
+                    self.state = State::GaveUp;
+                    return i + 1;
+                }
+            }
+            i += 1;
+        }
+        self.state = State::Points { depth, expect };
+        i
+    }
+
     fn close(&mut self) {
         self.stack.pop();
         self.state = if self.stack.is_empty() {
@@ -291,6 +399,28 @@ impl BodyGuard {
             State::After
         };
     }
+}
+
+/// The bytes of numbers and literals, by value.
+const SCALAR: [bool; 256] = {
+    let mut t = [false; 256];
+    let mut b = 0;
+    while b < 256 {
+        let c = b as u8;
+        t[b] = c.is_ascii_alphanumeric() || matches!(c, b'-' | b'+' | b'.');
+        b += 1;
+    }
+    t
+};
+
+/// A byte of a number or a literal.
+fn is_scalar_byte(b: u8) -> bool {
+    SCALAR[usize::from(b)]
+}
+
+/// How many bytes from the start of `bytes` satisfy `f`.
+fn run_len(bytes: &[u8], f: impl Fn(u8) -> bool) -> usize {
+    bytes.iter().position(|&b| !f(b)).unwrap_or(bytes.len())
 }
 
 #[cfg(test)]
@@ -345,6 +475,17 @@ mod tests {
             landmarks(1500)
         );
         assert_eq!(fed(BodyKind::Pose, &nested, 13).0, Ok(()));
+        // A landmark that is a string or an object is refused at once (its list is counted
+        // without the tokenizer, which strings could mislead).
+        for bad in ["\"a]\"", "{\"x\": 1}"] {
+            let body = format!("{{\"landmarks\": [[1, 2], {bad}, null]}}");
+            assert_eq!(
+                fed(BodyKind::Pose, &body, 5).0,
+                Err(Breach::NotALandmark { face: None })
+            );
+        }
+        let body = "{\"landmarks\": [[1, 2], null,[3,4] ], \"id\": \"]\"}";
+        assert_eq!(fed(BodyKind::Pose, body, 2).0, Ok(()));
         let escaped = format!("{{\"land\\u006darks\": {}}}", landmarks(1500));
         assert_eq!(fed(BodyKind::Pose, &escaped, 13).0, Ok(()));
     }
