@@ -11,6 +11,8 @@
 //!   slow-header clients and idle HTTP/1 connections are closed after it.
 //! - **An idle timeout** (`--idle-timeout`): an HTTP/2 connection with no request or stream in
 //!   progress that long is closed gracefully (GOAWAY).
+//! - **An HTTP/1 read buffer of [`HTTP1_BUFFER`]** (headers up to that, 431 past it), so that
+//!   a body streaming in holds that much per connection, not hyper's 400 KiB.
 //! - **Request headers up to [`MAX_HEADER_LIST`] on HTTP/2**, about what HTTP/1's buffer
 //!   allows (with hyper's 16 KiB default, h2 took a 100 KiB header block for abuse, past 4
 //!   times the limit, and closed the connection with every other call on it). Past the limit
@@ -37,6 +39,11 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 use tokio_util::task::TaskTracker;
 use tower::ServiceExt;
+
+/// The read buffer of an HTTP/1 connection, at most (hyper's default is about 400 KiB): a
+/// request's headers must fit in it. Each connection's buffer grows to it while a body streams
+/// in, so 60 connections draining refused 8 MB bodies held 54 MiB at hyper's default.
+pub const HTTP1_BUFFER: usize = 64 * 1024;
 
 /// The most bytes of request headers an HTTP/2 request may have (HPACK-decoded).
 pub const MAX_HEADER_LIST: u32 = 256 * 1024;
@@ -131,7 +138,8 @@ pub async fn serve(
     builder
         .http1()
         .timer(TokioTimer::new())
-        .header_read_timeout(limits.header_timeout);
+        .header_read_timeout(limits.header_timeout)
+        .max_buf_size(HTTP1_BUFFER);
     builder
         .http2()
         .timer(TokioTimer::new())

@@ -159,6 +159,27 @@ async fn slow_headers_and_idle_http1_connections_are_closed_after_the_header_tim
     );
 }
 
+#[tokio::test]
+async fn http1_headers_fit_in_a_64_kib_buffer() {
+    // hyper's 400 KiB default: each connection's buffer grew to it while a body streamed in.
+    let server = Server::start(&[]);
+    for (kib, status) in [(60, 200), (70, 431)] {
+        let head = format!(
+            "GET /healthz HTTP/1.1\r\nHost: x\r\nX-Large: {}\r\nConnection: close\r\n\r\n",
+            "v".repeat(kib * 1024)
+        );
+        let mut s = std::net::TcpStream::connect(server.addr).unwrap();
+        std::io::Write::write_all(&mut s, head.as_bytes()).unwrap();
+        let (answer, _) = read_until_closed(&mut s, Duration::from_secs(5));
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(
+            answer.starts_with(&format!("HTTP/1.1 {status}")),
+            "{kib} KiB: {}",
+            answer.lines().next().unwrap_or_default()
+        );
+    }
+}
+
 /// Plays a silent HTTP/2 client on `s` until the server closes it or `limit` passes: whether a
 /// GOAWAY came, and whether the connection was closed in time.
 fn answer_until_closed(s: &mut std::net::TcpStream, limit: Duration) -> (bool, bool) {
