@@ -15,6 +15,9 @@ use facepose_app::metrics::{FaceTally, Metrics, Transport};
 use facepose_app::pose::{FaceSpec, estimate_face, for_each_face};
 use facepose_app::registry::ModelSet;
 use facepose_app::{App, Limits};
+use facepose_core::estimate::Intrinsics;
+use facepose_core::pose::{LandmarkStyle, Method};
+use facepose_core::record::MAX_COORDINATE;
 
 use super::body::{json_bytes, parse_json, read_guarded_body, require_json, to_json};
 use super::body_guard::{BodyGuard, BodyKind};
@@ -53,6 +56,73 @@ pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchReques
         }
     }
     parse_json(bytes)
+}
+
+/// Refuses (422) a batch with a value its schema rules out, at the batch's level or a face's:
+/// a name over 64 characters, a method or landmark style that is not one, a camera without
+/// positive focal lengths, a coordinate beyond ±1e9. Such a batch is malformed, not a batch
+/// with an unusable face; what the document cannot state (a landmark count that must match
+/// the scheme, an unknown scheme, degenerate points) stays each face's own error.
+fn check_conformance(req: &BatchRequest) -> Result<(), HttpError> {
+    let at = |i: Option<usize>, e: &dyn std::fmt::Display| {
+        HttpError::invalid(match i {
+            Some(i) => format!("faces[{i}]: {e}"),
+            None => e.to_string(),
+        })
+    };
+    let fields = |i,
+                  scheme: &Option<String>,
+                  method: &Option<String>,
+                  style: &Option<String>,
+                  camera: &Option<super::wire::Camera>| {
+        for (what, name) in [
+            ("scheme", scheme),
+            ("method", method),
+            ("landmark style", style),
+        ] {
+            ServiceError::check_name_length(what, name.as_deref().unwrap_or_default())
+                .map_err(|e| at(i, &e))?;
+        }
+        if let Some(m) = method.as_deref().filter(|m| !m.is_empty()) {
+            m.parse::<Method>().map_err(|e| at(i, &e))?;
+        }
+        if let Some(st) = style.as_deref().filter(|st| !st.is_empty()) {
+            st.parse::<LandmarkStyle>().map_err(|e| at(i, &e))?;
+        }
+        if let Some(c) = camera {
+            Intrinsics::from(*c).validate().map_err(|e| at(i, &e))?;
+        }
+        Ok::<(), HttpError>(())
+    };
+    ServiceError::check_name_length("model", req.model.as_deref().unwrap_or_default())?;
+    fields(
+        None,
+        &req.scheme,
+        &req.method,
+        &req.landmark_style,
+        &req.camera,
+    )?;
+    for (i, f) in req.faces.iter().enumerate() {
+        fields(Some(i), &f.scheme, &f.method, &f.landmark_style, &f.camera)?;
+        let beyond = f
+            .landmarks
+            .0
+            .iter()
+            .flatten()
+            .flatten()
+            .position(|v| v.abs() > MAX_COORDINATE);
+        if let Some(k) = beyond {
+            return Err(at(
+                Some(i),
+                &format!(
+                    "landmark {} {} is out of range: pixel coordinates must be within ±{MAX_COORDINATE:e}",
+                    k / 2,
+                    ["x", "y"][k % 2]
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Estimate the head pose of one face.
@@ -161,6 +231,7 @@ pub fn answer_batch(
         }
         .into());
     }
+    check_conformance(&req)?;
     let model = models.get(req.model.as_deref())?;
     let mut tally = FaceTally::default();
     let results = for_each_face(req.faces, deadline, |face| {

@@ -577,13 +577,14 @@ async fn long_names_are_refused_and_errors_never_echo_more_than_a_kilobyte() {
             "{field}: {message}"
         );
         assert!(message.len() < 200, "{field}: {} bytes", message.len());
-        // In a batch, the same as a per-face error.
+        // In a batch's face: the batch is outside its schema, refused whole.
         if field != "model" {
             let mut one = json!({"landmarks": face});
             one[field] = json!(long);
             let (got, v) = post(&c, &server.url("/v1/pose:batch"), &json!({"faces": [one]})).await;
-            assert_eq!(got, StatusCode::OK, "{field}: {v}");
-            let message = v["results"][0]["error"]["message"].as_str().unwrap();
+            assert_eq!(got, StatusCode::UNPROCESSABLE_ENTITY, "{field}: {v}");
+            let message = v["error"]["message"].as_str().unwrap();
+            assert!(message.starts_with("faces[0]: "), "{field}: {message}");
             assert!(message.len() < 200, "{field}: {message}");
         }
     }
@@ -785,4 +786,54 @@ async fn the_document_describes_ids_landmarks_and_path_errors() {
             );
         }
     }
+}
+
+#[tokio::test]
+async fn a_batch_outside_its_schema_is_refused_whole() {
+    // Such batches got a 200 with each face's error; the schema rules them out.
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose:batch");
+    let good = json!({"landmarks": face5(10.0, 0.0, 0.0)});
+    let long = "s".repeat(65);
+    for (body, words) in [
+        (
+            json!({"scheme": long, "faces": [good]}),
+            "at most 64 characters",
+        ),
+        (
+            json!({"scheme": "five", "faces": [good, {"landmarks": face5(0.0, 0.0, 0.0), "method": "bogus"}]}),
+            "faces[1]: ",
+        ),
+        (
+            json!({"scheme": "five", "faces": [good], "landmark_style": "sketch"}),
+            "unknown landmark style",
+        ),
+        (
+            json!({"scheme": "five", "faces": [{"landmarks": face5(0.0, 0.0, 0.0), "camera": {"fx": 0, "fy": 900, "cx": 0, "cy": 0}}]}),
+            "faces[0]: ",
+        ),
+        (
+            json!({"scheme": "five", "faces": [{"landmarks": [[1, 2], [3, 4], [5, 6], [7, 8], [9, 2e9]]}]}),
+            "landmark 4 y is out of range",
+        ),
+    ] {
+        let (status, v) = post(&c, &url, &body).await;
+        assert_eq!(status, StatusCode::UNPROCESSABLE_ENTITY, "{body}: {v}");
+        let m = v["error"]["message"].as_str().unwrap();
+        assert!(m.contains(words), "{words:?} not in {m:?}");
+    }
+    // What the schema cannot say stays the face's own error.
+    let (status, v) = post(
+        &c,
+        &url,
+        &json!({"scheme": "five", "faces": [good, {"landmarks": [[1, 2]]}, {"landmarks": face5(0.0, 0.0, 0.0), "scheme": "nope"}]}),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_eq!(
+        (v["succeeded"].as_u64(), v["failed"].as_u64()),
+        (Some(1), Some(2)),
+        "{v}"
+    );
 }
