@@ -26,9 +26,15 @@ pub struct Landmarks(pub Vec<Option<[f64; 2]>>);
 /// arithmetic of the estimators would overflow.
 pub const MAX_COORDINATE: f64 = 1e9;
 
-/// The shape of optional points (`None` = missing), after checking that every coordinate is
-/// finite and within ±[`MAX_COORDINATE`]; errors name the landmark.
+/// The shape of optional points (`None` = missing), after [`check_coordinates`].
 pub fn shape_from_points(points: &[Option<[f64; 2]>]) -> Result<Shape2> {
+    check_coordinates(points)?;
+    Shape2::from_options(points)
+}
+
+/// Checks that every coordinate of `points` is finite and within ±[`MAX_COORDINATE`]; errors
+/// name the landmark.
+pub fn check_coordinates(points: &[Option<[f64; 2]>]) -> Result<()> {
     for (i, p) in points.iter().enumerate() {
         for (c, v) in ["x", "y"].iter().zip(p.iter().flatten()) {
             if !v.is_finite() {
@@ -46,7 +52,7 @@ pub fn shape_from_points(points: &[Option<[f64; 2]>]) -> Result<Shape2> {
             }
         }
     }
-    Shape2::from_options(points)
+    Ok(())
 }
 
 impl Landmarks {

@@ -17,7 +17,7 @@ use facepose_app::registry::ModelSet;
 use facepose_app::{App, Limits};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{LandmarkStyle, Method};
-use facepose_core::record::MAX_COORDINATE;
+use facepose_core::record::check_coordinates;
 
 use super::body::{json_bytes, parse_json, read_guarded_body, require_json, to_json};
 use super::body_guard::{BodyGuard, BodyKind};
@@ -104,23 +104,7 @@ fn check_conformance(req: &BatchRequest) -> Result<(), HttpError> {
     )?;
     for (i, f) in req.faces.iter().enumerate() {
         fields(Some(i), &f.scheme, &f.method, &f.landmark_style, &f.camera)?;
-        let beyond = f
-            .landmarks
-            .0
-            .iter()
-            .flatten()
-            .flatten()
-            .position(|v| v.abs() > MAX_COORDINATE);
-        if let Some(k) = beyond {
-            return Err(at(
-                Some(i),
-                &format!(
-                    "landmark {} {} is out of range: pixel coordinates must be within ±{MAX_COORDINATE:e}",
-                    k / 2,
-                    ["x", "y"][k % 2]
-                ),
-            ));
-        }
+        check_coordinates(&f.landmarks.0).map_err(|e| at(Some(i), &e))?;
     }
     Ok(())
 }

@@ -814,8 +814,8 @@ async fn a_batch_outside_its_schema_is_refused_whole() {
             "faces[0]: ",
         ),
         (
-            json!({"scheme": "five", "faces": [{"landmarks": [[1, 2], [3, 4], [5, 6], [7, 8], [9, 2e9]]}]}),
-            "landmark 4 y is out of range",
+            json!({"scheme": "five", "faces": [{"landmarks": [[1, 2], null, [5, 6], [7, 8], [9, 2e9]]}]}),
+            "faces[0]: invalid parameter landmarks: landmark 4 y = 2e9 is out of range",
         ),
     ] {
         let (status, v) = post(&c, &url, &body).await;
