@@ -672,14 +672,7 @@ async fn path_segments_that_do_not_decode_get_the_json_error() {
 async fn the_document_describes_ids_landmarks_and_path_errors() {
     let server = Server::start(&[]);
     let c = reqwest::Client::new();
-    let doc: Value = c
-        .get(server.url("/openapi.json"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let (_, doc) = facepose_testkit::registry::get(&c, &server, "/openapi.json").await;
     let schemas = &doc["components"]["schemas"];
     let branches = schemas["FaceId"]["oneOf"].as_array().unwrap();
     let types: Vec<&str> = branches
