@@ -14,15 +14,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-echo "== building (release)"
-cargo build --release --locked --bin facepose 2>&1 | tail -1
-
-VENV=target/abuse-venv
-if ! "$VENV/bin/python" -c 'import h2' 2>/dev/null; then
-    echo "== making $VENV (h2)"
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet 'h2>=4,<5'
-fi
+. scripts/release-and-venv.sh
 # The attackers hold thousands of sockets.
 ulimit -n "$(ulimit -Hn)"
 exec "$VENV/bin/python" scripts/abuse.py "$@"

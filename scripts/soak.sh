@@ -21,13 +21,5 @@ if ! command -v wrk >/dev/null 2>&1; then
         { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y wrk >/dev/null; }
 fi
 
-echo "== building (release)"
-cargo build --release --locked --bin facepose 2>&1 | tail -1
-
-VENV=target/abuse-venv
-if ! "$VENV/bin/python" -c 'import h2' 2>/dev/null; then
-    echo "== making $VENV (h2)"
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet 'h2>=4,<5'
-fi
+. scripts/release-and-venv.sh
 exec "$VENV/bin/python" scripts/soak.py "$@"
