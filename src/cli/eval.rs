@@ -305,7 +305,11 @@ fn run_real(
     let mut timing = Vec::new();
     for &m in methods {
         for s in Source::ALL {
-            if m == Method::FitShape && s == Source::Five {
+            // The shape fit does not take anchor means (five), the geometric method needs
+            // the nose tip and mouth corners (not in dlib5).
+            if (m == Method::FitShape && s == Source::Five)
+                || (m == Method::Geometry && s == Source::Dlib5)
+            {
                 continue;
             }
             let t = Instant::now();
@@ -395,6 +399,7 @@ fn large_yaw_landmarks_png(faces: &[AflwFace]) -> Result<Vec<u8>, CliError> {
         .map(|f| LandmarkPanel {
             title: format!("{}: yaw {:.0}°, pitch {:.0}°", f.image, f.yaw, f.pitch),
             outline: 17,
+            numbered: vec![],
             sets: vec![
                 ("fitted".into(), f.landmarks_fitted.clone()),
                 ("reannotated".into(), f.landmarks_reannotated.clone()),

@@ -42,7 +42,7 @@ pub struct TrainArgs {
     #[arg(long, value_enum, default_value_t = Grid::Wide)]
     grid: Grid,
     /// Sub-schemes to serve besides the model's own.
-    #[arg(long, value_delimiter = ',', default_value = "inner51,five")]
+    #[arg(long, value_delimiter = ',', default_value = "inner51,five,dlib5")]
     subsets: Vec<String>,
     /// Principal components of the shape basis for `fit-shape` (0: none); ignored with
     /// --morphable.

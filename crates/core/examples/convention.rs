@@ -43,6 +43,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         panels.push(LandmarkPanel {
             title: title.into(),
             outline: 17,
+            numbered: vec![],
             sets: vec![
                 ("ibug68 landmarks".into(), pts),
                 ("nose bridge".into(), nose),

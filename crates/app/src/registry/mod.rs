@@ -529,7 +529,7 @@ mod tests {
         assert_eq!(m.store, None);
         assert_eq!(
             m.schemes().collect::<Vec<_>>(),
-            [("ibug68", 68), ("inner51", 51), ("five", 5)]
+            [("ibug68", 68), ("inner51", 51), ("five", 5), ("dlib5", 5)]
         );
         assert!(set.get(Some("")).is_ok());
         let err = set.get(Some("nope")).unwrap_err();

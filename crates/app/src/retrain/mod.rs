@@ -118,6 +118,14 @@ impl Prepared {
 }
 
 fn resolve_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ServiceError> {
+    let scheme = named_or_defined_scheme(spec)?;
+    scheme
+        .check_model_scheme()
+        .map_err(|e| ServiceError::invalid(format!("scheme: {e}")))?;
+    Ok(scheme)
+}
+
+fn named_or_defined_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ServiceError> {
     match spec {
         None => Ok(facepose_core::shape::ibug68()),
         Some(SchemeSpec::Name(n)) if n.is_empty() => Ok(facepose_core::shape::ibug68()),
@@ -266,5 +274,17 @@ mod tests {
         assert_eq!(e.kind(), crate::error::ErrorKind::InvalidArgument);
         assert_eq!(e.to_string(), "scheme: 1001 points; the limit is 1000");
         assert!(resolve_scheme(Some(SchemeSpec::Name("five".into()))).is_ok());
+    }
+
+    #[test]
+    fn a_scheme_without_nose_and_mouth_cannot_be_a_model_s_own() {
+        let e = resolve_scheme(Some(SchemeSpec::Name("dlib5".into()))).unwrap_err();
+        assert_eq!(e.kind(), crate::error::ErrorKind::InvalidArgument);
+        assert!(e.to_string().contains("serve this one as a subset"), "{e}");
+        let e = resolve_scheme(Some(SchemeSpec::Definition(Box::new(
+            facepose_core::shape::dlib5(),
+        ))))
+        .unwrap_err();
+        assert!(e.to_string().contains("nose tip and mouth corners"), "{e}");
     }
 }

@@ -10,7 +10,7 @@ use crate::geometry::convention::wrap_deg;
 use crate::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
 use crate::model::PoseModel;
 use crate::pose::{Method, estimate};
-use crate::shape::{Shape2, ibug68};
+use crate::shape::{DLIB5_IN_IBUG68, Shape2, ibug68};
 
 /// Where the landmarks come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -24,6 +24,9 @@ pub enum Source {
     Reannotated,
     /// Five points (eye centres, nose tip, mouth corners) derived from the re-annotated ones.
     Five,
+    /// dlib's five points (eye corners, nose base: scheme `dlib5`), the re-annotated ones'
+    /// points 45, 42, 36, 39 and 33.
+    Dlib5,
     /// Diagnostic: the re-annotated landmarks with the 17 jaw points of the fitted set, which
     /// are consistent with the ground truth's own 3DMM fit. Shows how much of the error on
     /// re-annotated landmarks comes from the jaw annotation disagreeing with that fit.
@@ -31,13 +34,19 @@ pub enum Source {
 }
 
 impl Source {
-    pub const ALL: [Source; 3] = [Source::Fitted, Source::Reannotated, Source::Five];
+    pub const ALL: [Source; 4] = [
+        Source::Fitted,
+        Source::Reannotated,
+        Source::Five,
+        Source::Dlib5,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
             Source::Fitted => "fitted",
             Source::Reannotated => "reannotated",
             Source::Five => "five (from reannotated)",
+            Source::Dlib5 => "dlib5 (from reannotated)",
             Source::ReannotatedFittedJaw => "reannotated, jaw from fitted (diagnostic)",
         }
     }
@@ -89,6 +98,17 @@ pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str
             "five",
             to_shape(&face.landmarks_reannotated)?.to_five(&IBUG68)?,
         )),
+        Source::Dlib5 => {
+            let pts = &face.landmarks_reannotated;
+            if pts.len() != IBUG68.len() {
+                return Err(crate::Error::PointCount {
+                    what: "re-annotated landmarks".into(),
+                    expected: IBUG68.len(),
+                    got: pts.len(),
+                });
+            }
+            Ok(("dlib5", to_shape(&DLIB5_IN_IBUG68.map(|i| pts[i]))?))
+        }
     }
 }
 

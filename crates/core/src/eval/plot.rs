@@ -461,6 +461,8 @@ pub struct LandmarkPanel {
     pub outline: usize,
     /// (name, points) per set.
     pub sets: Vec<(String, Vec<[f64; 2]>)>,
+    /// The sets (positions in `sets`) whose points are labelled with their index.
+    pub numbered: Vec<usize>,
 }
 
 /// Landmark panels side by side, equal scale on both axes, image y downwards.
@@ -519,7 +521,7 @@ pub fn landmarks_png(title: &str, panels: &[LandmarkPanel]) -> Result<Vec<u8>, P
                 .light_line_style(RGBColor(240, 240, 240))
                 .draw()
                 .map_err(err)?;
-            for (name, pts) in &panel.sets {
+            for (k, (name, pts)) in panel.sets.iter().enumerate() {
                 let i = names.iter().position(|n| n == name).unwrap_or(0);
                 let color = PALETTE[i % PALETTE.len()];
                 let line: Vec<(f64, f64)> = pts
@@ -536,6 +538,15 @@ pub fn landmarks_png(title: &str, panels: &[LandmarkPanel]) -> Result<Vec<u8>, P
                         EmptyElement::at((p[0], p[1])) + Polygon::new(poly.clone(), color.filled())
                     }))
                     .map_err(err)?;
+                if panel.numbered.contains(&k) {
+                    let font = ("sans-serif", 14).into_font().color(&color);
+                    chart
+                        .draw_series(pts.iter().enumerate().map(|(j, p)| {
+                            EmptyElement::at((p[0], p[1]))
+                                + Text::new(j.to_string(), (5, -16), font.clone())
+                        }))
+                        .map_err(err)?;
+                }
             }
         }
         Ok(())

@@ -17,7 +17,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::geometry::{EulerAngles, WeakPerspective};
 use crate::hpr::PaperHpr;
 use crate::parallel;
-use crate::shape::{Scheme, Shape2, Shape3, five};
+use crate::shape::{DLIB5_IN_IBUG68, Scheme, Shape2, Shape3, dlib5, five};
 use crate::synth::{AngleRange, PoseGrid, ViewSynthesizer, image_of};
 
 /// Pose grids and ridge parameter of the regressions.
@@ -134,7 +134,7 @@ fn default_epsilons() -> Vec<f64> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainOptions {
     pub regression: RegressionParams,
-    /// Sub-schemes to serve besides the model's own (`inner51`, `five` for ibug68).
+    /// Sub-schemes to serve besides the model's own (`inner51`, `five`, `dlib5` for ibug68).
     pub subsets: Vec<String>,
     /// Seed of the validation views.
     pub seed: u64,
@@ -144,7 +144,7 @@ impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
             regression: RegressionParams::wide(),
-            subsets: vec!["inner51".into(), "five".into()],
+            subsets: vec!["inner51".into(), "five".into(), "dlib5".into()],
             seed: 2011,
         }
     }
@@ -160,6 +160,7 @@ pub fn train(
     morph: Option<MorphableBasis>,
     opts: &TrainOptions,
 ) -> Result<PoseModel> {
+    scheme.check_model_scheme()?;
     if mean.len() != scheme.len() {
         return Err(Error::PointCount {
             what: "mean shape".into(),
@@ -230,6 +231,7 @@ pub fn train_from_population(
     basis: BasisSource<'_>,
     opts: &TrainOptions,
 ) -> Result<PoseModel> {
+    scheme.check_model_scheme()?;
     if shapes.len() < 2 {
         return Err(Error::too_few("training shapes", 2, shapes.len()));
     }
@@ -260,6 +262,7 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     }
     match (scheme.name.as_str(), name) {
         (_, "five") => Ok((five(), SubsetMap::Anchors)),
+        ("ibug68", "dlib5") => Ok((dlib5(), SubsetMap::Indices(DLIB5_IN_IBUG68.to_vec()))),
         ("ibug68", "inner51") => {
             let idx: Vec<usize> = (17..68).collect();
             Ok((scheme.subset("inner51", &idx)?, SubsetMap::Indices(idx)))

@@ -3,7 +3,7 @@
 pub mod scheme;
 pub mod shapes;
 
-pub use scheme::{Anchors, MAX_POINTS, Scheme, five, ibug68, inner51};
+pub use scheme::{Anchors, DLIB5_IN_IBUG68, MAX_POINTS, Scheme, dlib5, five, ibug68, inner51};
 pub use shapes::{Shape2, Shape3, normalized_vector};
 
 /// A 3D point of a shape: model frame, mm.

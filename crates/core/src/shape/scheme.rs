@@ -3,9 +3,12 @@
 //! of the face in 2D annotations rather than a fixed 3D point).
 //!
 //! Built in: `ibug68` (Multi-PIE / 300-W order), `inner51` (ibug68 points 17-67, the paper's
-//! "50 points") and `five` ([eye centre on image-left, eye centre on image-right, nose tip, mouth
-//! corner on image-left, mouth corner on image-right], the RetinaFace / MTCNN order). A model
-//! trained on another point set brings its own scheme as JSON ([`Scheme::from_json`]).
+//! "50 points"), `five` ([eye centre on image-left, eye centre on image-right, nose tip, mouth
+//! corner on image-left, mouth corner on image-right], the RetinaFace / MTCNN / InsightFace
+//! order) and `dlib5` (dlib's `shape_predictor_5_face_landmarks`, the one face_recognition uses:
+//! [image-right eye outer corner, its inner corner, image-left eye outer corner, its inner
+//! corner, nose base], ibug68 points 45, 42, 36, 39, 33). A model trained on another point set
+//! brings its own scheme as JSON ([`Scheme::from_json`]).
 
 use serde::{Deserialize, Serialize};
 
@@ -13,6 +16,10 @@ use crate::error::{Error, Result};
 
 /// The points whose mean gives each semantic anchor. "Left" and "right" are image-left and
 /// image-right for a frontal face (image-left = the subject's right).
+///
+/// The eyes are always named. The nose tip and mouth corners are named together or not at all:
+/// a scheme without them (`dlib5`) serves every method but the geometric one, and cannot be a
+/// model's own scheme ([`Scheme::check_model_scheme`]).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Anchors {
     pub eye_left: Vec<usize>,
@@ -23,6 +30,12 @@ pub struct Anchors {
 }
 
 impl Anchors {
+    /// Whether the nose tip and mouth corners are named (what the geometric method and a
+    /// model's own scheme need).
+    pub fn has_nose_and_mouth(&self) -> bool {
+        !self.nose_tip.is_empty()
+    }
+
     /// The five anchors in `five` order.
     pub fn as_array(&self) -> [&[usize]; 5] {
         [
@@ -57,8 +70,8 @@ pub struct Scheme {
 
 impl Scheme {
     /// A validated scheme: 3 to [`MAX_POINTS`] points with unique non-empty names, anchors and
-    /// contour in range, each anchor non-empty, and `mirror` (if given) an involutive
-    /// permutation.
+    /// contour in range, both eye anchors non-empty, the nose tip and mouth corners all named
+    /// or all empty, and `mirror` (if given) an involutive permutation.
     pub fn new(
         name: impl Into<String>,
         points: Vec<String>,
@@ -120,9 +133,23 @@ impl Scheme {
             "mouth_left",
             "mouth_right",
         ];
-        for (label, idx) in labels.iter().zip(self.anchors.as_array()) {
-            if idx.is_empty() {
-                return Err(self.invalid(format!("anchor {label} names no point")));
+        let optional = !self.anchors.has_nose_and_mouth();
+        for (k, (label, idx)) in labels.iter().zip(self.anchors.as_array()).enumerate() {
+            if idx.is_empty() && (k < 2 || !optional) {
+                return Err(self.invalid(if k < 2 {
+                    format!("anchor {label} names no point")
+                } else {
+                    format!(
+                        "anchor {label} names no point: name the nose tip and both mouth \
+                         corners, or none of them"
+                    )
+                }));
+            }
+            if k >= 2 && !idx.is_empty() && optional {
+                return Err(self.invalid(format!(
+                    "anchor {label} names points but nose_tip names none: name the nose tip \
+                     and both mouth corners, or none of them"
+                )));
             }
             if let Some(i) = idx.iter().find(|&&i| i >= n) {
                 return Err(
@@ -144,6 +171,20 @@ impl Scheme {
         Ok(())
     }
 
+    /// Checks what a model's own scheme needs beyond [`Scheme::validate`]: the nose tip and
+    /// mouth corners, from which training derives the face's frame and the geometric method's
+    /// constants.
+    pub fn check_model_scheme(&self) -> Result<()> {
+        if self.anchors.has_nose_and_mouth() {
+            return Ok(());
+        }
+        Err(self.invalid(
+            "names no nose tip and mouth corners, which a model's own scheme needs (the face's \
+             frame and the geometric method come from them); train on a scheme that has them \
+             (ibug68) and serve this one as a subset",
+        ))
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()
@@ -154,18 +195,19 @@ impl Scheme {
         self.points.is_empty()
     }
 
-    /// A built-in scheme by name (`ibug68`, `inner51`, `five`).
+    /// A built-in scheme by name (`ibug68`, `inner51`, `five`, `dlib5`).
     pub fn builtin(name: &str) -> Option<Scheme> {
         match name {
             "ibug68" => Some(ibug68()),
             "inner51" => Some(inner51()),
             "five" => Some(five()),
+            "dlib5" => Some(dlib5()),
             _ => None,
         }
     }
 
     /// The names of the built-in schemes.
-    pub const BUILTIN: [&'static str; 3] = ["ibug68", "inner51", "five"];
+    pub const BUILTIN: [&'static str; 4] = ["ibug68", "inner51", "five", "dlib5"];
 
     /// The sub-scheme made of `indices` of this one (anchors, mirror and contour carried over).
     /// Fails when an anchor or a mirror partner is not among the kept points.
@@ -297,6 +339,36 @@ pub fn five() -> Scheme {
         .expect("the built-in five scheme is valid")
 }
 
+/// The ibug68 points that dlib's 5-point predictor finds, in its order (found by running both
+/// of dlib's predictors on one photograph: each of the five lies within 1.4 px of its ibug68
+/// point, docs/SCHEMES.md).
+pub const DLIB5_IN_IBUG68: [usize; 5] = [45, 42, 36, 39, 33];
+
+/// dlib's five-point scheme (`shape_predictor_5_face_landmarks`, used by face_recognition): the
+/// image-right eye's outer and inner corners, the image-left eye's outer and inner corners, and
+/// the base of the nose (ibug68 points [`DLIB5_IN_IBUG68`]). It names no nose tip or mouth
+/// corners, so the geometric method does not take it.
+pub fn dlib5() -> Scheme {
+    let points = [
+        "eye_right_outer",
+        "eye_right_inner",
+        "eye_left_outer",
+        "eye_left_inner",
+        "nose_base",
+    ]
+    .map(String::from)
+    .to_vec();
+    let anchors = Anchors {
+        eye_left: vec![2, 3],
+        eye_right: vec![0, 1],
+        nose_tip: vec![],
+        mouth_left: vec![],
+        mouth_right: vec![],
+    };
+    Scheme::new("dlib5", points, anchors, Some(vec![2, 3, 0, 1, 4]), vec![])
+        .expect("the built-in dlib5 scheme is valid")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -312,6 +384,7 @@ mod tests {
         assert_eq!(ibug68().len(), 68);
         assert_eq!(inner51().len(), 51);
         assert_eq!(five().len(), 5);
+        assert_eq!(dlib5().len(), 5);
         let i51 = inner51();
         assert_eq!(i51.anchors.nose_tip, vec![13]);
         assert_eq!(i51.anchors.mouth_left, vec![31]);
@@ -335,6 +408,53 @@ mod tests {
         bad.mirror = Some(vec![1, 0, 2, 3, 3]);
         assert!(bad.validate().is_err());
         assert!(Scheme::from_json("{not json").is_err());
+    }
+
+    #[test]
+    fn dlib5_is_ibug68_points_with_its_mirror() {
+        // The mirror of dlib5 must be the mirror of the ibug68 points it takes.
+        let (d, i) = (dlib5(), ibug68());
+        let im = i.mirror.unwrap();
+        for (k, &p) in DLIB5_IN_IBUG68.iter().enumerate() {
+            let partner = d.mirror.as_ref().unwrap()[k];
+            assert_eq!(DLIB5_IN_IBUG68[partner], im[p], "point {k}");
+        }
+        // Its eye anchors are ibug68's eyes: the image-left eye is 36-41.
+        assert!(
+            d.anchors
+                .eye_left
+                .iter()
+                .all(|&k| (36..42).contains(&DLIB5_IN_IBUG68[k]))
+        );
+        assert!(
+            d.anchors
+                .eye_right
+                .iter()
+                .all(|&k| (42..48).contains(&DLIB5_IN_IBUG68[k]))
+        );
+    }
+
+    #[test]
+    fn nose_and_mouth_are_named_together_or_not_at_all() {
+        assert!(dlib5().validate().is_ok());
+        assert!(!dlib5().anchors.has_nose_and_mouth());
+        let mut half = dlib5();
+        half.anchors.nose_tip = vec![4];
+        let e = half.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("mouth_left") && e.contains("or none of them"),
+            "{e}"
+        );
+        let mut no_mouth = five();
+        no_mouth.anchors.mouth_right = vec![];
+        let e = no_mouth.validate().unwrap_err().to_string();
+        assert!(e.contains("mouth_right names no point"), "{e}");
+        let mut no_eye = dlib5();
+        no_eye.anchors.eye_left = vec![];
+        assert!(no_eye.validate().is_err());
+        let e = dlib5().check_model_scheme().unwrap_err().to_string();
+        assert!(e.contains("dlib5") && e.contains("subset"), "{e}");
+        assert!(ibug68().check_model_scheme().is_ok());
     }
 
     #[test]

@@ -162,8 +162,20 @@ macro_rules! shape_common {
             }
 
             /// The five-point shape (scheme `five`) of this shape under `scheme`: each anchor is
-            /// the mean of its present points; an anchor with none present is missing.
+            /// the mean of its present points; an anchor with none present is missing. Fails
+            /// for a scheme that names no nose tip and mouth corners (`dlib5`).
             pub fn to_five(&self, scheme: &Scheme) -> Result<Self> {
+                if !scheme.anchors.has_nose_and_mouth() {
+                    return Err(Error::param(
+                        "scheme",
+                        format!(
+                            "{} names no nose tip and mouth corners, which the five anchor \
+                             points (and the geometric method) need; use fit, fit-shape or \
+                             regression",
+                            scheme.name
+                        ),
+                    ));
+                }
                 if scheme.len() != self.len() {
                     return Err(Error::PointCount {
                         what: format!("shape for scheme {}", scheme.name),

@@ -201,7 +201,7 @@ async fn unary_batch_and_models() {
             .iter()
             .map(|s| (s.name.as_str(), s.points))
             .collect::<Vec<_>>(),
-        [("ibug68", 68), ("inner51", 51), ("five", 5)]
+        [("ibug68", 68), ("inner51", 51), ("five", 5), ("dlib5", 5)]
     );
     let m = c
         .get_model(proto::GetModelRequest {

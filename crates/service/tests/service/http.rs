@@ -223,7 +223,7 @@ async fn models_health_metrics_and_openapi() {
     assert_eq!(m["default"], true);
     assert_eq!(
         m["schemes"],
-        json!([{"name": "ibug68", "points": 68}, {"name": "inner51", "points": 51}, {"name": "five", "points": 5}])
+        json!([{"name": "ibug68", "points": 68}, {"name": "inner51", "points": 51}, {"name": "five", "points": 5}, {"name": "dlib5", "points": 5}])
     );
     assert!(m["checksum"].as_str().unwrap().starts_with("sha256:"));
     assert!(
