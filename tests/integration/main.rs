@@ -9,6 +9,7 @@ mod cli;
 mod cli_estimate;
 mod contour_style;
 mod conventions_aflw;
+mod detectors;
 mod eval_paper;
 mod hpr_mesh;
 mod model_bundle;
