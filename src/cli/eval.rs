@@ -18,9 +18,9 @@ use facepose_core::eval::plot::{
 };
 use facepose_core::pose::Method;
 use facepose_core::shape::Scheme;
-use facepose_files::data::{AflwFace, data_dir, load_aflw, load_population};
+use facepose_files::data::{AflwFace, load_aflw, load_population};
 
-use super::CliError;
+use super::{CliError, DataArg};
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 pub enum Protocol {
@@ -71,6 +71,8 @@ pub struct EvalArgs {
     /// Paper protocol: seed of the view scales, noise and missing points.
     #[arg(long, default_value_t = 2011)]
     seed: u64,
+    #[command(flatten)]
+    data: DataArg,
 }
 
 const HEATMAP_PNG: &str = "paper-heatmap.png";
@@ -110,9 +112,8 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
             report.push('\n');
         }
         let path = a
-            .dataset
-            .clone()
-            .unwrap_or_else(|| data_dir().join("aflw2000/aflw2000_dev.jsonl"));
+            .data
+            .or_file(a.dataset.as_deref(), "aflw2000/aflw2000_dev.jsonl")?;
         let faces = load_aflw(&path)?;
         let (text, rows) = run_real(&a, &path, &faces, &methods)?;
         report.push_str(&text);
@@ -143,9 +144,8 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), CliError> {
 
 fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), CliError> {
     let path = a
-        .population
-        .clone()
-        .unwrap_or_else(|| data_dir().join("bfm68/population_249.json"));
+        .data
+        .or_file(a.population.as_deref(), "bfm68/population_249.json")?;
     let pop = load_population(&path)?;
     let scheme = Scheme::builtin(&pop.scheme).ok_or_else(|| {
         format!(

@@ -5,9 +5,9 @@ use std::path::PathBuf;
 use clap::Args;
 use facepose_core::eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
 use facepose_core::shape::ibug68;
-use facepose_files::data::{data_dir, load_population};
+use facepose_files::data::load_population;
 
-use super::CliError;
+use super::{CliError, DataArg};
 
 #[derive(Args)]
 pub struct EvalSfmArgs {
@@ -17,12 +17,14 @@ pub struct EvalSfmArgs {
     /// Random seed of the views.
     #[arg(long, default_value_t = 2011)]
     seed: u64,
+    #[command(flatten)]
+    data: DataArg,
 }
 
 pub fn run(a: EvalSfmArgs) -> Result<(), CliError> {
     let path = a
-        .population
-        .unwrap_or_else(|| data_dir().join("bfm68/population_249.json"));
+        .data
+        .or_file(a.population.as_deref(), "bfm68/population_249.json")?;
     let pop = load_population(&path)?;
     if pop.scheme != "ibug68" {
         return Err(format!(

@@ -6,9 +6,9 @@ use clap::Args;
 use facepose_core::eval::hpr_table::{hpr_markdown, hpr_table};
 use facepose_core::hpr::KatzHpr;
 use facepose_core::synth::AngleRange;
-use facepose_files::data::{data_dir, load_canonical_mesh};
+use facepose_files::data::load_canonical_mesh;
 
-use super::CliError;
+use super::{CliError, DataArg};
 
 #[derive(Args)]
 pub struct HprArgs {
@@ -27,12 +27,14 @@ pub struct HprArgs {
     /// Print JSON rows instead of Markdown.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    data: DataArg,
 }
 
 pub fn run(a: HprArgs) -> Result<(), CliError> {
     let path = a
-        .mesh
-        .unwrap_or_else(|| data_dir().join("mediapipe/canonical_face_468.json"));
+        .data
+        .or_file(a.mesh.as_deref(), "mediapipe/canonical_face_468.json")?;
     let mesh = load_canonical_mesh(&path)?;
     let yaw = AngleRange::new(-a.max_yaw, a.max_yaw, a.step)?;
     let pitch = AngleRange::new(-a.max_pitch, a.max_pitch, a.step)?;

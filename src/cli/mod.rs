@@ -11,6 +11,30 @@ pub mod train;
 /// An error of a subcommand, printed with its context chain.
 pub type CliError = Box<dyn std::error::Error + Send + Sync>;
 
+/// `--data DIR`: the shared data folder, for the commands whose default inputs come from it.
+#[derive(clap::Args)]
+pub struct DataArg {
+    /// The shared data folder (with bfm68/, aflw2000/, mediapipe/), for the default input
+    /// files. Looked up at run time: --data DIR, else $FACEPOSE_DATA, else ../shared/data from
+    /// the working directory; the error lists where it looked.
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<std::path::PathBuf>,
+}
+
+impl DataArg {
+    /// `explicit` if given, else the shared data folder's file `rel`.
+    pub fn or_file(
+        &self,
+        explicit: Option<&std::path::Path>,
+        rel: &str,
+    ) -> Result<std::path::PathBuf, CliError> {
+        match explicit {
+            Some(p) => Ok(p.to_path_buf()),
+            None => Ok(facepose_files::data::locate_data_dir(self.data.as_deref())?.join(rel)),
+        }
+    }
+}
+
 /// The model of `--model DIR`, or the embedded default model.
 pub fn load_model(
     dir: Option<&std::path::Path>,

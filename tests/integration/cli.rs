@@ -142,3 +142,96 @@ fn hpr_prints_the_table() {
         assert!(text.contains(needle), "{needle} missing:\n{text}");
     }
 }
+
+/// `facepose` run from `dir` with `FACEPOSE_DATA` set to `data` (or removed).
+fn facepose_in(
+    dir: &std::path::Path,
+    data: Option<&std::path::Path>,
+    args: &[&str],
+) -> (i32, String) {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_facepose"));
+    c.args(args).current_dir(dir).env_remove("FACEPOSE_DATA");
+    if let Some(d) = data {
+        c.env("FACEPOSE_DATA", d);
+    }
+    let out = c.output().expect("run facepose");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn the_data_folder_is_found_at_run_time_and_the_error_says_where_it_looked() {
+    // A working directory with no ../shared/data beside it: a binary that kept the path of the
+    // checkout it was built in would still find the data from there.
+    let dir = std::env::temp_dir().join(format!("facepose-cli-data-{}", std::process::id()));
+    let work = dir.join("work");
+    std::fs::create_dir_all(&work).unwrap();
+    let data = std::path::absolute(common::data_file("mediapipe/canonical_face_468.json"))
+        .unwrap()
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    let hpr = [
+        "hpr",
+        "--step",
+        "45",
+        "--max-yaw",
+        "45",
+        "--max-pitch",
+        "45",
+    ];
+    let (code, err) = facepose_in(&work, None, &hpr);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("no shared data folder: looked at --data (not given), then FACEPOSE_DATA (not set), then ")
+            && err.contains("work/../shared/data (no such folder)")
+            && err.contains("give it with --data DIR or FACEPOSE_DATA=DIR"),
+        "{err}"
+    );
+    // The flag, the variable, and the folder beside the working directory each find it.
+    let with_flag: Vec<&str> = hpr
+        .iter()
+        .copied()
+        .chain(["--data", data.to_str().unwrap()])
+        .collect();
+    assert_eq!(facepose_in(&work, None, &with_flag).0, 0);
+    assert_eq!(facepose_in(&work, Some(&data), &hpr).0, 0);
+    std::fs::create_dir_all(dir.join("shared")).unwrap();
+    std::os::unix::fs::symlink(&data, dir.join("shared/data")).unwrap();
+    assert_eq!(facepose_in(&work, None, &hpr).0, 0);
+    // A folder that is named must exist: no silent fallback to another one.
+    let (code, err) = facepose_in(
+        &work,
+        None,
+        &[&hpr[..], &["--data", "/nonexistent/data"]].concat(),
+    );
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("/nonexistent/data (from --data: no such folder)"),
+        "{err}"
+    );
+    // A file missing inside the folder is named, with how to point at the data.
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let (code, err) = facepose_in(&work, Some(&empty), &["eval-sfm"]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("empty/bfm68/population_249.json")
+            && err.contains("point FACEPOSE_DATA, or --data"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+    // --help says where the commands look.
+    for cmd in ["eval", "eval-sfm", "hpr"] {
+        let out = facepose(&[cmd, "--help"]);
+        let help = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            help.contains("--data DIR, else $FACEPOSE_DATA, else ../shared/data from the working"),
+            "{cmd}: {help}"
+        );
+    }
+}
