@@ -64,6 +64,9 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("facepose: {e:#}");
+            if let Some(f) = e.downcast_ref::<cli::Finished>() {
+                return ExitCode::from(f.status);
+            }
             // 2 when a command could not do its work; 3 when the service ran and its drain was
             // cut short.
             let status = e

@@ -1,6 +1,7 @@
 //! `facepose estimate`: landmarks in (JSON Lines or CSV, a file or standard input), one pose per
 //! face out (JSON Lines on standard output). A bad line gives `{"id": ..., "error": ...}` and the
-//! run goes on; only unusable arguments or files end it with a non-zero status.
+//! run goes on; the exit status says whether every face, some or none were estimated
+//! ([`EXIT_STATUS_HELP`]). The formats: docs/FORMATS.md, "Landmarks for `facepose estimate`".
 
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
 use std::path::PathBuf;
@@ -8,38 +9,65 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 use facepose_core::estimate::Intrinsics;
+use facepose_core::model::PoseModel;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::record::{Landmarks, PoseRecord, shape_from_points};
 use facepose_core::shape::Shape2;
 use serde::Deserialize;
 use serde_json::{Value, json};
 
-use super::CliError;
+use super::{CliError, Finished};
+
+/// What the exit status of `facepose estimate` means (its `--help` shows this).
+pub const EXIT_STATUS_HELP: &str = "Exit status: 0 every face was estimated; 1 some faces \
+were not (their lines carry \"error\"); 3 nothing was estimated (no face in the input, or \
+every one failed); 2 the arguments or the input file are unusable.";
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
 pub enum Format {
     /// CSV for a .csv file or a first line with commas that is not a JSON object; else JSON Lines.
     Auto,
+    /// One JSON object per line: {"landmarks": [[x, y] | null, ...], "id": ..., ...}.
     Jsonl,
+    /// One face per row: [id,]x0,y0,x1,y1,...; empty cells for a missing point.
     Csv,
 }
 
+#[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum Header {
+    /// A header when no cell of the first row but its first is a number: a data row always
+    /// has numbers, so no face is taken for a header.
+    Auto,
+    /// The first row is a header.
+    Yes,
+    /// Every row is a face.
+    No,
+}
+
 #[derive(Args)]
+#[command(after_help = EXIT_STATUS_HELP)]
 pub struct EstimateArgs {
     /// Input file, or - for standard input.
     #[arg(long)]
     input: PathBuf,
-    /// Landmark scheme of the input.
-    #[arg(long, default_value = "ibug68")]
-    scheme: String,
+    /// Landmark scheme of the input (ibug68, inner51, five, dlib5, or a trained model's own).
+    /// Default: chosen per face by its number of points where only one scheme has that many
+    /// (68: ibug68, 51: inner51); 5 points must be named (five or dlib5). A JSON line's own
+    /// `"scheme"` takes precedence.
+    #[arg(long)]
+    scheme: Option<String>,
     /// Estimator (auto picks the most accurate for the input).
     #[arg(long, default_value = "auto")]
     method: String,
     /// Model bundle directory (default: the embedded default model).
     #[arg(long)]
     model: Option<PathBuf>,
+    /// Input format (docs/FORMATS.md).
     #[arg(long, value_enum, default_value_t = Format::Auto)]
     format: Format,
+    /// Whether a CSV input's first row is a header.
+    #[arg(long, value_enum, default_value_t = Header::Auto)]
+    header: Header,
     /// Camera intrinsics `fx,fy,cx,cy` (pixels) for every face: the fit methods then refine
     /// the pose under perspective and report the face's position. A JSON line's own
     /// `"camera": {"fx": .., "fy": .., "cx": .., "cy": ..}` takes precedence.
@@ -71,14 +99,16 @@ fn parse_camera(s: &str) -> Result<Intrinsics, String> {
 struct LineOptions {
     camera: Option<Intrinsics>,
     style: Option<LandmarkStyle>,
+    scheme: Option<String>,
 }
 
 pub fn run(a: EstimateArgs) -> Result<(), CliError> {
     let method: Method = a.method.parse()?;
     let style: LandmarkStyle = a.landmark_style.parse()?;
     let (_, model) = super::load_model(a.model.as_deref())?;
-    let subset = model.subset(&a.scheme)?;
-    let n = subset.scheme.len();
+    if let Some(s) = &a.scheme {
+        model.subset(s)?;
+    }
     let reader: Box<dyn Read> = if a.input.as_os_str() == "-" {
         Box::new(std::io::stdin().lock())
     } else {
@@ -107,7 +137,7 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
     let start = Instant::now();
     let mut last_report = Instant::now();
     let (mut done, mut failed) = (0usize, 0usize);
-    let mut csv_has_id = None;
+    let mut first_row = true;
     for (k, line) in lines.enumerate() {
         let line = line.map_err(|e| format!("{}: line {}: {e}", a.input.display(), k + 1))?;
         if line.trim().is_empty() {
@@ -115,16 +145,11 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
         }
         let (id, parsed) = match format {
             Format::Csv => {
-                if k == 0
-                    && line
-                        .split(',')
-                        .next()
-                        .is_some_and(|c| c.trim().parse::<f64>().is_err() && !c.trim().is_empty())
-                {
-                    csv_has_id = Some(line.split(',').count() == 2 * n + 1);
+                let first = std::mem::replace(&mut first_row, false);
+                if first && is_csv_header(&line, a.header) {
                     continue;
                 }
-                let (id, shape) = parse_csv(&line, n, csv_has_id);
+                let (id, shape) = parse_csv(&line);
                 (id, shape.map(|s| (s, LineOptions::default())))
             }
             _ => parse_jsonl(&line),
@@ -135,13 +160,19 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                 camera: line_opts.camera.or(a.camera),
                 style: line_opts.style.unwrap_or(style),
             };
-            estimate_with(&model, &a.scheme, &shape, &opts).map_err(|e| e.to_string())
+            let scheme = scheme_of(&model, line_opts.scheme.or(a.scheme.clone()), &shape)?;
+            estimate_with(&model, &scheme, &shape, &opts)
+                .map(|e| (e, scheme))
+                .map_err(|e| e.to_string())
         });
         let value = match result {
-            Ok(e) => {
+            Ok((e, scheme)) => {
                 let mut v = serde_json::to_value(PoseRecord::from(&e))?;
-                if let Some(id) = id {
-                    v.as_object_mut().map(|o| o.insert("id".into(), id));
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("scheme".into(), scheme.into());
+                    if let Some(id) = id {
+                        o.insert("id".into(), id);
+                    }
                 }
                 v
             }
@@ -161,13 +192,58 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
         }
     }
     out.flush()?;
-    if start.elapsed() > Duration::from_secs(2) {
-        eprintln!(
-            "done: {done} faces, {failed} with errors, in {:.2?}",
-            start.elapsed()
-        );
+    let summary = format!(
+        "{} of {done} faces estimated, {failed} with errors, in {:.2?}",
+        done - failed,
+        start.elapsed()
+    );
+    match (done, failed) {
+        (0, _) => Err(Finished::new(3, "nothing estimated: the input has no face").into()),
+        (d, f) if f == d => Err(Finished::new(
+            3,
+            format!(
+                "nothing estimated: every face failed ({summary}); each line's \"error\" says why"
+            ),
+        )
+        .into()),
+        (_, f) if f > 0 => Err(Finished::new(1, summary).into()),
+        _ => {
+            if start.elapsed() > Duration::from_secs(2) {
+                eprintln!("done: {summary}");
+            }
+            Ok(())
+        }
     }
-    Ok(())
+}
+
+/// The scheme of one face: the one named (flag or line), else the only served scheme with its
+/// number of points.
+fn scheme_of(model: &PoseModel, named: Option<String>, shape: &Shape2) -> Result<String, String> {
+    match named {
+        Some(s) => Ok(s),
+        None => model
+            .scheme_for_count(shape.len())
+            .map(|s| s.scheme.name.clone())
+            .map_err(|e| format!("{e}, with --scheme or a line's \"scheme\"")),
+    }
+}
+
+/// Whether the first row of a CSV input is a header: by `--header`, or (auto) when no cell but
+/// the first (an id column's name or an id) is a number. A face's row has numbers in its
+/// coordinate cells, so a face is never dropped for a header; a header of numbers would be
+/// estimated as a face and fail, visibly, as one.
+fn is_csv_header(line: &str, header: Header) -> bool {
+    match header {
+        Header::Yes => true,
+        Header::No => false,
+        Header::Auto => {
+            let cells: Vec<&str> = line.split(',').map(str::trim).collect();
+            cells
+                .iter()
+                .any(|c| !c.is_empty() && c.parse::<f64>().is_err())
+                && cells[1..].iter().all(|c| c.parse::<f64>().is_err())
+        }
+    }
 }
 
 /// One JSON Lines record: `{"landmarks": [[x, y] | null, ...], "id": ...}`.
@@ -205,36 +281,33 @@ fn parse_jsonl(line: &str) -> (Option<Value>, Result<(Shape2, LineOptions), Stri
                 return Err(format!("\"landmark_style\" must be a string, got {other}"));
             }
         };
-        Ok(LineOptions { camera, style })
+        let scheme = match v.get("scheme") {
+            None | Some(Value::Null) => None,
+            Some(Value::String(s)) => Some(s.clone()),
+            Some(other) => return Err(format!("\"scheme\" must be a string, got {other}")),
+        };
+        Ok(LineOptions {
+            camera,
+            style,
+            scheme,
+        })
     })();
     (id, shape.and_then(|s| opts.map(|o| (s, o))))
 }
 
-/// One CSV row: `[id,]x0,y0,...,x{n-1},y{n-1}`, empty cells for a missing point.
-fn parse_csv(
-    line: &str,
-    n: usize,
-    has_id: Option<bool>,
-) -> (Option<Value>, Result<Shape2, String>) {
+/// One CSV row: `[id,]x0,y0,...,x{n-1},y{n-1}`, empty cells for a missing point. An odd number
+/// of cells means the first is an id (a point has two).
+fn parse_csv(line: &str) -> (Option<Value>, Result<Shape2, String>) {
     let cells: Vec<&str> = line.split(',').map(str::trim).collect();
-    let has_id = has_id.unwrap_or(cells.len() == 2 * n + 1);
-    let (id, coords) = if has_id {
+    let (id, coords) = if cells.len() % 2 == 1 {
         (Some(json!(cells[0])), &cells[1..])
     } else {
         (None, &cells[..])
     };
-    if coords.len() != 2 * n {
-        return (
-            id,
-            Err(format!(
-                "{} coordinate cells, expected {} (x and y for {n} points)",
-                coords.len(),
-                2 * n
-            )),
-        );
-    }
-    let pts = (0..n)
-        .map(|i| match (coords[2 * i], coords[2 * i + 1]) {
+    let pts = coords
+        .chunks(2)
+        .enumerate()
+        .map(|(i, c)| match (c[0], c[1]) {
             ("", "") => Ok(None),
             (x, y) => match (x.parse::<f64>(), y.parse::<f64>()) {
                 (Ok(x), Ok(y)) => Ok(Some([x, y])),

@@ -11,6 +11,31 @@ pub mod train;
 /// An error of a subcommand, printed with its context chain.
 pub type CliError = Box<dyn std::error::Error + Send + Sync>;
 
+/// A subcommand that ran to its end with an outcome its exit status reports (`estimate`: some
+/// or no faces estimated): the message goes to standard error, `status` is the exit status.
+#[derive(Debug)]
+pub struct Finished {
+    pub status: u8,
+    pub message: String,
+}
+
+impl Finished {
+    pub fn new(status: u8, message: impl Into<String>) -> Self {
+        Finished {
+            status,
+            message: message.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for Finished {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl std::error::Error for Finished {}
+
 /// `--data DIR`: the shared data folder, for the commands whose default inputs come from it.
 #[derive(clap::Args)]
 pub struct DataArg {

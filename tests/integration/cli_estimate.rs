@@ -135,15 +135,22 @@ fn bad_lines_give_error_records_and_the_run_goes_on() {
         good,
     ]
     .join("\n");
-    let (code, out, _) = run(&["estimate", "--input", "-"], &input);
-    assert_eq!(code, 0);
+    let (code, out, err) = run(&["estimate", "--input", "-"], &input);
+    // Some faces failed: status 1, and the summary says how many.
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("1 of 6 faces estimated, 5 with errors"),
+        "{err}"
+    );
     assert_eq!(out.len(), 6);
     assert!(out[0]["error"].as_str().unwrap().contains("JSON"));
     assert!(
         out[1]["error"]
             .as_str()
             .unwrap()
-            .contains("expected 68 points, got 1")
+            .contains("1 landmarks, and no scheme of this model has that many (ibug68: 68"),
+        "{}",
+        out[1]
     );
     assert!(out[2]["error"].as_str().unwrap().contains("landmark 0"));
     assert!(out[3]["error"].as_str().unwrap().contains("degenerate"));
@@ -257,4 +264,137 @@ fn camera_intrinsics_give_pose_and_position_under_perspective() {
     let (code, _, err) = run(&["estimate", "--input", "-", "--camera", "1,2,3"], "");
     assert_ne!(code, 0);
     assert!(err.contains("fx,fy,cx,cy"), "{err}");
+}
+
+/// The mean face at a known pose as a CSV row of `scheme`'s points, after `id`.
+fn csv_row(id: &str, pts: &[Vector2<f64>]) -> String {
+    let mut row = id.to_string();
+    for p in pts {
+        row += &format!(",{},{}", p.x, p.y);
+    }
+    row
+}
+
+#[test]
+fn a_headerless_csv_with_text_ids_keeps_its_first_row() {
+    let faces = projected();
+    let rows: Vec<String> = faces[..3]
+        .iter()
+        .enumerate()
+        .map(|(k, (_, pts))| csv_row(&format!("face{k}"), pts))
+        .collect();
+    let (code, out, err) = run(
+        &["estimate", "--input", "-", "--format", "csv"],
+        &rows.join("\n"),
+    );
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.len(), 3, "3 rows in, 3 poses out");
+    for (k, v) in out.iter().enumerate() {
+        assert_eq!(v["id"], format!("face{k}"));
+        assert!(
+            geodesic_deg(&rotation(v), &faces[k].0.to_rotation()) < 0.5,
+            "{v}"
+        );
+    }
+    // A header without an id column is still a header; `--header no` takes it for a face.
+    let mut header: Vec<String> = (0..68)
+        .flat_map(|i| [format!("x{i}"), format!("y{i}")])
+        .collect();
+    header.truncate(136);
+    let with_header = format!(
+        "{}\n{}",
+        header.join(","),
+        rows[0].split_once(',').unwrap().1
+    );
+    let (code, out, _) = run(
+        &["estimate", "--input", "-", "--format", "csv"],
+        &with_header,
+    );
+    assert_eq!((code, out.len()), (0, 1));
+    let (code, out, _) = run(
+        &[
+            "estimate", "--input", "-", "--format", "csv", "--header", "no",
+        ],
+        &with_header,
+    );
+    assert_eq!((code, out.len()), (1, 2));
+    assert!(
+        out[0]["error"].as_str().unwrap().contains("not numbers"),
+        "{}",
+        out[0]
+    );
+}
+
+#[test]
+fn the_exit_status_says_whether_anything_was_estimated() {
+    let (code, out, err) = run(&["estimate", "--input", "-"], "");
+    assert_eq!((code, out.len()), (3, 0));
+    assert!(
+        err.contains("nothing estimated: the input has no face"),
+        "{err}"
+    );
+    let bad = json!({"id": "a", "landmarks": [[1, 2], [3, 4], [5, 6]]}).to_string();
+    let (code, out, err) = run(&["estimate", "--input", "-"], &format!("{bad}\n{bad}"));
+    assert_eq!((code, out.len()), (3, 2));
+    assert!(
+        err.contains("nothing estimated: every face failed"),
+        "{err}"
+    );
+    // The help says what the statuses mean.
+    let help = Command::new(env!("CARGO_BIN_EXE_facepose"))
+        .args(["estimate", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("Exit status: 0 every face was estimated; 1 some"),
+        "{help}"
+    );
+}
+
+#[test]
+fn the_scheme_follows_the_point_count_and_five_points_must_be_named() {
+    let model = default_model().unwrap().1;
+    let (truth, _) = projected()[1].clone();
+    let cam = WeakPerspective::new(truth.to_rotation(), 2.0, Vector2::new(320.0, -240.0)).unwrap();
+    let json_line = |name: &str| {
+        let sub = model.subset(name).unwrap();
+        let pts: Vec<[f64; 2]> = sub
+            .mean
+            .iter()
+            .map(|x| cam.project(x))
+            .map(|p| [p.x, p.y])
+            .collect();
+        json!({"id": name, "landmarks": pts}).to_string()
+    };
+    // 51 points: inner51, the only scheme with that many.
+    let (code, out, err) = run(&["estimate", "--input", "-"], &json_line("inner51"));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out[0]["scheme"], "inner51");
+    assert!(geodesic_deg(&rotation(&out[0]), &truth.to_rotation()) < 1.0);
+    // 5 points: two layouts have five, so the answer names both and how to choose.
+    let (code, out, _) = run(&["estimate", "--input", "-"], &json_line("dlib5"));
+    assert_eq!(code, 3);
+    let e = out[0]["error"].as_str().unwrap();
+    assert!(e.contains("5 landmarks fit more than one scheme"), "{e}");
+    assert!(e.contains("five [eye_left, eye_right, nose_tip"), "{e}");
+    assert!(e.contains("dlib5 [eye_right_outer"), "{e}");
+    assert!(e.contains("--scheme"), "{e}");
+    // Named, on the line or with the flag, they are estimated.
+    let line = json_line("dlib5").replace("\"id\"", "\"scheme\": \"dlib5\", \"id\"");
+    let (code, out, err) = run(&["estimate", "--input", "-"], &line);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out[0]["scheme"], "dlib5");
+    assert!(geodesic_deg(&rotation(&out[0]), &truth.to_rotation()) < 1.0);
+    // A count that does not match the named scheme says which schemes have it.
+    let (code, out, _) = run(
+        &["estimate", "--input", "-", "--scheme", "ibug68"],
+        &json_line("five"),
+    );
+    assert_eq!(code, 3);
+    let e = out[0]["error"].as_str().unwrap();
+    assert!(
+        e.contains("(5 points is five [") && e.contains("expected 68 points, got 5"),
+        "{e}"
+    );
 }

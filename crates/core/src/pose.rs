@@ -217,7 +217,10 @@ pub fn estimate_with(
     let subset = model.subset(scheme)?;
     if landmarks.len() != subset.scheme.len() {
         return Err(Error::PointCount {
-            what: format!("landmarks for scheme {scheme}"),
+            what: format!(
+                "landmarks for scheme {scheme}{}",
+                model.count_hint(landmarks.len())
+            ),
             expected: subset.scheme.len(),
             got: landmarks.len(),
         });

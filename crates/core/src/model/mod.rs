@@ -131,6 +131,53 @@ impl PoseModel {
             })
     }
 
+    /// The scheme this model serves with `n` points, when only one has that many (68: `ibug68`,
+    /// 51: `inner51` for the default model). Fails, naming the candidates and their points, when
+    /// several have that many (5: `five` and `dlib5`, two different point sets) or none does.
+    pub fn scheme_for_count(&self, n: usize) -> Result<&Subset> {
+        let fits: Vec<&Subset> = self
+            .subsets
+            .iter()
+            .filter(|s| s.scheme.len() == n)
+            .collect();
+        match fits[..] {
+            [one] => Ok(one),
+            [] => Err(Error::param(
+                "scheme",
+                format!(
+                    "{n} landmarks, and no scheme of this model has that many ({})",
+                    self.subsets
+                        .iter()
+                        .map(|s| format!("{}: {}", s.scheme.name, s.scheme.len()))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            )),
+            _ => Err(Error::param(
+                "scheme",
+                format!(
+                    "{n} landmarks fit more than one scheme, so name it: {}",
+                    describe_schemes(&fits)
+                ),
+            )),
+        }
+    }
+
+    /// For a landmark count that does not match `scheme`: which served schemes have that many
+    /// points ("" when none does), to append to the error.
+    pub fn count_hint(&self, n: usize) -> String {
+        let fits: Vec<&Subset> = self
+            .subsets
+            .iter()
+            .filter(|s| s.scheme.len() == n)
+            .collect();
+        if fits.is_empty() {
+            String::new()
+        } else {
+            format!(" ({n} points is {})", describe_schemes(&fits))
+        }
+    }
+
     /// The model's landmarks expanded from a subset's (missing where the subset has no point).
     pub fn expand(&self, subset: &Subset, shape: &Shape2) -> Option<Shape2> {
         match &subset.map {
@@ -145,6 +192,15 @@ impl PoseModel {
             SubsetMap::Anchors => None,
         }
     }
+}
+
+/// `five [eye_left, eye_right, ...] or dlib5 [...]`: the schemes with their points in order.
+fn describe_schemes(subsets: &[&Subset]) -> String {
+    subsets
+        .iter()
+        .map(|s| format!("{} [{}]", s.scheme.name, s.scheme.points.join(", ")))
+        .collect::<Vec<_>>()
+        .join(" or ")
 }
 
 /// The default model's bundle text (built by `facepose train` from ../shared/data/bfm68; see
