@@ -50,7 +50,7 @@ pub fn authorize(app: &App, headers: &HeaderMap) -> Result<(), HttpError> {
 
 /// The loaded models.
 #[utoipa::path(get, path = "/v1/models", tag = "models",
-    responses((status = 200, body = ModelsResponse)))]
+    responses((status = 200, description = "The loaded models and the default one", body = ModelsResponse)))]
 pub async fn list_models(State(app): State<Arc<App>>) -> Json<ModelsResponse> {
     Json(app.models_view().into())
 }
@@ -58,8 +58,8 @@ pub async fn list_models(State(app): State<Arc<App>>) -> Json<ModelsResponse> {
 /// One model, with its provenance.
 #[utoipa::path(get, path = "/v1/models/{name}", tag = "models",
     params(("name" = String, Path, description = "The model's name")),
-    responses((status = 200, body = ModelDetail), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
-        (status = 404, body = ErrorBody),
+    responses((status = 200, description = "The model and its provenance", body = ModelDetail), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, description = "Unknown model", body = ErrorBody),
         (status = 422, description = "A name over 64 characters", body = ErrorBody)))]
 pub async fn get_model(
     State(app): State<Arc<App>>,
@@ -75,8 +75,8 @@ pub async fn get_model(
 /// A model's versions in the models folder (also for a model not served yet).
 #[utoipa::path(get, path = "/v1/models/{name}/versions", tag = "registry",
     params(("name" = String, Path, description = "The model's folder name")),
-    responses((status = 200, body = VersionsResponse), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
-        (status = 404, body = ErrorBody)))]
+    responses((status = 200, description = "The model's versions and the active one", body = VersionsResponse), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, description = "No such model in the models folder", body = ErrorBody)))]
 pub async fn list_versions(
     State(app): State<Arc<App>>,
     Segments(name): Segments<String>,
@@ -94,7 +94,8 @@ pub async fn list_versions(
     responses(
         (status = 200, description = "Active and served here; other replicas follow within --registry-poll", body = ActivateResponse),
         (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
-        (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
+        (status = 401, description = "Missing, malformed or wrong admin token (`unauthenticated`)", body = ErrorBody),
+        (status = 403, description = "Admin routes disabled: the server has no admin token (`forbidden`)", body = ErrorBody),
         (status = 404, description = "Unknown model or version", body = ErrorBody),
         (status = 422, description = "Not a model name (1-64 of a-z, 0-9, `_`, `.`, `-`) or not a version id", body = ErrorBody),
         (status = 409, description = "The version does not load, or no models folder", body = ErrorBody)))]
@@ -124,7 +125,8 @@ pub async fn version_action(
     responses(
         (status = 204, description = "Deleted"),
         (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
-        (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
+        (status = 401, description = "Missing, malformed or wrong admin token (`unauthenticated`)", body = ErrorBody),
+        (status = 403, description = "Admin routes disabled: the server has no admin token (`forbidden`)", body = ErrorBody),
         (status = 404, description = "Unknown model or version", body = ErrorBody),
         (status = 422, description = "Not a model name (1-64 of a-z, 0-9, `_`, `.`, `-`) or not a version id", body = ErrorBody),
         (status = 409, description = "The active version, the folder's own bundle or the built-in model", body = ErrorBody)))]

@@ -25,7 +25,7 @@ pub struct OpenApiText(pub Arc<str>);
 
 /// Liveness: the process answers.
 #[utoipa::path(get, path = "/healthz", tag = "operations",
-    responses((status = 200, body = Status)))]
+    responses((status = 200, description = "The process answers: `{\"status\": \"alive\"}`", body = Status)))]
 pub async fn healthz() -> Response {
     json_bytes(br#"{"status":"alive"}"#.to_vec())
 }
@@ -34,7 +34,9 @@ pub async fn healthz() -> Response {
 /// version of the models folder fails to load here, the answer is still 200 (the previous
 /// version serves) and lists the problem under `problems`.
 #[utoipa::path(get, path = "/readyz", tag = "operations",
-    responses((status = 200, body = Status), (status = 503, body = Status)))]
+    responses(
+        (status = 200, description = "Ready: models loaded, not draining; `problems` lists active versions that do not load here (the previous one serves)", body = Status),
+        (status = 503, description = "Draining: shutting down, send requests elsewhere", body = Status)))]
 pub async fn readyz(State(app): State<Arc<App>>) -> Response {
     match app.readiness() {
         Readiness::Ready { problems } if problems.is_empty() => {
@@ -57,7 +59,7 @@ pub async fn readyz(State(app): State<Arc<App>>) -> Response {
 
 /// Prometheus metrics (text exposition format).
 #[utoipa::path(get, path = "/metrics", tag = "operations",
-    responses((status = 200, content_type = "text/plain; version=0.0.4", body = String)))]
+    responses((status = 200, description = "The metrics in the Prometheus text exposition format", content_type = "text/plain; version=0.0.4", body = String)))]
 pub async fn metrics_text(State(app): State<Arc<App>>) -> Response {
     (
         [(
@@ -71,7 +73,7 @@ pub async fn metrics_text(State(app): State<Arc<App>>) -> Response {
 
 /// This document.
 #[utoipa::path(get, path = "/openapi.json", tag = "operations",
-    responses((status = 200, content_type = "application/json", body = Object)))]
+    responses((status = 200, description = "This OpenAPI document", content_type = "application/json", body = Object)))]
 pub async fn openapi(Extension(doc): Extension<OpenApiText>) -> Response {
     json_bytes(doc.0.as_bytes().to_vec())
 }

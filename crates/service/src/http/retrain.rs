@@ -373,7 +373,10 @@ pub async fn retrain(
 /// A retraining job, from any replica sharing the models folder.
 #[utoipa::path(get, path = "/v1/models/jobs/{id}", tag = "registry",
     params(("id" = String, Path, description = "The job id from POST /v1/models")),
-    responses((status = 200, body = Job), (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody), (status = 404, body = ErrorBody)))]
+    responses(
+        (status = 200, description = "The job", body = Job),
+        (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, description = "Unknown job, or ended more than an hour ago", body = ErrorBody)))]
 pub async fn get_job(
     State(app): State<Arc<App>>,
     Segments(id): Segments<String>,
@@ -390,7 +393,8 @@ pub async fn get_job(
         (status = 200, description = "Cancelled (state `cancelled`)", body = Job),
         (status = 202, description = "The job runs on another replica, asked to cancel it at its next stage; the job as last recorded", body = Job),
         (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
-        (status = 401, body = ErrorBody), (status = 403, body = ErrorBody),
+        (status = 401, description = "Missing, malformed or wrong admin token (`unauthenticated`)", body = ErrorBody),
+        (status = 403, description = "Admin routes disabled: the server has no admin token (`forbidden`)", body = ErrorBody),
         (status = 404, description = "Unknown job, or no action", body = ErrorBody),
         (status = 409, description = "The job has ended, or is writing or activating its version", body = ErrorBody)))]
 pub async fn job_action(
