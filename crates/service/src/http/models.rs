@@ -87,8 +87,9 @@ pub async fn list_versions(
 /// Activate a version: `POST /v1/models/{name}/versions/{version}:activate` (admin). Rolling
 /// back is activating an older version.
 #[utoipa::path(post, path = "/v1/models/{name}/versions/{version}", tag = "registry",
+    operation_id = "activate_version",
     params(("name" = String, Path, description = "The model's folder name"),
-           ("version" = String, Path, description = "`<version>:activate`, e.g. `3:activate`",
+           ("version" = String, Path, description = "The version followed by `:activate`: `3:activate` activates version 3",
             pattern = "^[^:/]+:activate$")),
     security(("admin_token" = [])),
     responses(

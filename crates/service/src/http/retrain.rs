@@ -387,7 +387,8 @@ pub async fn get_job(
 /// Cancel a retraining job: `POST /v1/models/jobs/{id}:cancel` (admin). A queued job never
 /// trains; a running one stops at its next stage, before its version is written.
 #[utoipa::path(post, path = "/v1/models/jobs/{id}", tag = "registry",
-    params(("id" = String, Path, description = "`<id>:cancel`", pattern = "^[0-9a-f]{32}:cancel$")),
+    operation_id = "cancel_job",
+    params(("id" = String, Path, description = "The job id followed by `:cancel`", pattern = "^[0-9a-f]{32}:cancel$")),
     security(("admin_token" = [])),
     responses(
         (status = 200, description = "Cancelled (state `cancelled`)", body = Job),

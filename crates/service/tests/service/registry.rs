@@ -1306,3 +1306,44 @@ async fn jobs_are_seen_and_cancelled_through_any_replica() {
     let (_, models) = get(&c, &b, "/v1/models").await;
     assert!(!models.to_string().contains(".jobs"), "{models}");
 }
+
+/// Generated clients (openapi-python-client, docs/API.md) send the action routes' last segment
+/// percent-encoded: `1%3Aactivate`, `<id>%3Acancel`. The server decodes it before it looks for
+/// the action, so they reach the same handlers as `1:activate` and `<id>:cancel`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn percent_encoded_actions_are_the_actions() {
+    let dir = TempDir::new("encoded-actions");
+    let server = admin_server(&dir, "1s");
+    let c = client();
+    for encoded in ["1%3Aactivate", "1%3aactivate"] {
+        let path = format!("/v1/models/default/versions/{encoded}");
+        let (s, v) = post_admin(&c, &server, &path, &json!({})).await;
+        assert_eq!(s, StatusCode::OK, "{path}: {v}");
+        assert_eq!(
+            (&v["name"], &v["version"]),
+            (&json!("default"), &json!("1"))
+        );
+    }
+    // An unknown version or job: the action was found, the version or job was not.
+    let id = "0123456789abcdef0123456789abcdef";
+    for path in [
+        "/v1/models/default/versions/7%3Aactivate".to_string(),
+        format!("/v1/models/jobs/{id}%3Acancel"),
+    ] {
+        let (s, e) = post_admin(&c, &server, &path, &json!({})).await;
+        assert_eq!(s, StatusCode::NOT_FOUND, "{path}: {e}");
+        let message = e["error"]["message"].as_str().unwrap();
+        assert!(!message.contains("no action"), "{path}: {message}");
+        assert!(!message.contains("%3A"), "{path}: {message}");
+    }
+    // Without the suffix, encoded or not, there is no action.
+    let (s, e) = post_admin(&c, &server, "/v1/models/default/versions/1%3A", &json!({})).await;
+    assert_eq!(s, StatusCode::NOT_FOUND, "{e}");
+    assert!(
+        e["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("no action"),
+        "{e}"
+    );
+}
