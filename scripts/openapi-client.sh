@@ -1,0 +1,112 @@
+#!/usr/bin/env bash
+# The served OpenAPI document through the tools clients use: openapi-spec-validator validates
+# it, openapi-python-client generates a Python client from it (a warning, such as an endpoint
+# it skips, is a failure), and scripts/openapi_client_check.py calls the server through that
+# client: a real AFLW2000-3D face against its ground truth, a batch with a bad face, a typed
+# error body, and an admin activation through the `:activate` route (docs/API.md, "OpenAPI
+# and generated clients").
+#
+#   scripts/openapi-client.sh
+#
+# Creates (or reuses) a Python venv in target/openapi-client-venv with pinned versions of both
+# tools, builds the release binary, starts the server on a free loopback port with a temporary
+# models folder and admin token, waits for /readyz, then runs the three steps. The document
+# goes to target/openapi-client/openapi.json, the client to
+# target/openapi-client/facepose_client. Prints each step's outcome and a one-line summary;
+# exits non-zero on any failure. Every step is bounded in time (TIMEOUT seconds each, 120 by
+# default). Data: FACEPOSE_DATA (default ../shared/data). Not part of CI.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+SPEC_VALIDATOR_VERSION=0.9.0
+CLIENT_GENERATOR_VERSION=0.29.1
+TIMEOUT=${TIMEOUT:-120}
+DATA=${FACEPOSE_DATA:-../shared/data}
+FACES="$DATA/aflw2000/aflw2000_dev.jsonl"
+VENV=target/openapi-client-venv
+OUT=target/openapi-client
+WORK=$(mktemp -d)
+PID=""
+trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; wait "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
+
+[ -f "$FACES" ] && [ -f "$DATA/bfm68/population_249.json" ] || { echo "no shared data in $DATA (set FACEPOSE_DATA)"; exit 1; }
+
+installed() {
+    "$VENV/bin/python" -c "import importlib.metadata as m; print(m.version('$1'))" 2>/dev/null || true
+}
+if [ "$(installed openapi-spec-validator)" != "$SPEC_VALIDATOR_VERSION" ] ||
+    [ "$(installed openapi-python-client)" != "$CLIENT_GENERATOR_VERSION" ]; then
+    echo "== installing openapi-spec-validator $SPEC_VALIDATOR_VERSION and" \
+        "openapi-python-client $CLIENT_GENERATOR_VERSION in $VENV"
+    [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
+    timeout 600 "$VENV/bin/pip" install -q --disable-pip-version-check \
+        "openapi-spec-validator==$SPEC_VALIDATOR_VERSION" \
+        "openapi-python-client==$CLIENT_GENERATOR_VERSION"
+fi
+# The generator formats its output with ruff, installed beside it.
+export PATH="$PWD/$VENV/bin:$PATH"
+
+echo "== building (release)"
+cargo build --release --locked --bin facepose 2>&1 | tail -1
+BIN=target/release/facepose
+
+MODELS="$WORK/models"
+mkdir -p "$MODELS"
+TOKEN=$(python3 -c 'import secrets; print(secrets.token_hex(32))')
+TOKENFILE="$WORK/admin-token"
+(umask 077; printf '%s\n' "$TOKEN" >"$TOKENFILE")
+
+PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+BASE="http://127.0.0.1:$PORT"
+
+echo "== starting the server on $BASE (models in $MODELS)"
+"$BIN" serve --addr "127.0.0.1:$PORT" --log warn --models "$MODELS" \
+    --admin-token-file "$TOKENFILE" 2>"$WORK/server.log" &
+PID=$!
+for _ in $(seq 1 600); do
+    curl -sf -o /dev/null "$BASE/readyz" && break
+    kill -0 "$PID" 2>/dev/null || { echo "server exited:"; cat "$WORK/server.log"; exit 1; }
+    sleep 0.05
+done
+curl -sf -o /dev/null "$BASE/readyz" || { echo "server not ready after 30 s"; exit 1; }
+
+rm -rf "$OUT"
+mkdir -p "$OUT"
+curl -sf --max-time 10 -o "$OUT/openapi.json" "$BASE/openapi.json"
+
+declare -a summary
+failed=0
+step() { # name, command...
+    local name=$1
+    shift
+    echo "== $name"
+    if timeout "$TIMEOUT" "$@"; then
+        summary+=("ok    $name")
+    else
+        summary+=("FAIL  $name (exit $?)")
+        failed=$((failed + 1))
+    fi
+}
+
+step "openapi-spec-validator $SPEC_VALIDATOR_VERSION" \
+    openapi-spec-validator "$OUT/openapi.json"
+step "openapi-python-client $CLIENT_GENERATOR_VERSION generate --fail-on-warning" \
+    openapi-python-client generate --path "$OUT/openapi.json" --meta none \
+    --output-path "$OUT/facepose_client" --overwrite --fail-on-warning
+if [ -d "$OUT/facepose_client" ]; then
+    step "calls through the generated client (scripts/openapi_client_check.py)" \
+        "$VENV/bin/python" scripts/openapi_client_check.py "$BASE" "$TOKEN" "$OUT" \
+        "$OUT/openapi.json" "$DATA"
+else
+    summary+=("FAIL  calls through the generated client (no client generated)")
+    failed=$((failed + 1))
+fi
+
+if grep -qiE "panicked|ERROR" "$WORK/server.log"; then
+    echo "== server log (errors)"
+    grep -iE "panicked|ERROR" "$WORK/server.log" | head -20
+fi
+echo "== summary"
+printf '%s\n' "${summary[@]}"
+echo "$((${#summary[@]} - failed)) passed, $failed failed"
+[ "$failed" -eq 0 ]
