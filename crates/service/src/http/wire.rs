@@ -154,7 +154,7 @@ pub struct PoseRequest {
     /// point that could not be found.
     #[schema(schema_with = landmarks_schema)]
     pub landmarks: Landmarks,
-    /// The landmark scheme (`ibug68`, `inner51`, `five`, ...); default: the model's own.
+    /// The landmark scheme (`ibug68`, `inner51`, `five`, `dlib5`, ...); default: the model's own.
     #[serde(default)]
     #[schema(max_length = 64)]
     pub scheme: Option<String>,
@@ -302,7 +302,10 @@ pub struct ModelSummary {
     pub checksum: String,
     /// The bundle file, or `embedded`.
     pub source: String,
-    /// Whether requests that name no model use it.
+    /// Whether requests that name no model use it (named as in gRPC's `ModelInfo`).
+    pub is_default: bool,
+    /// The same as `is_default`, under its first name: kept for clients written before it.
+    #[schema(deprecated)]
     pub default: bool,
     /// Its versions in the models folder (empty without one): the folder's active one and the
     /// one this replica serves are marked.
@@ -405,6 +408,7 @@ impl From<ModelView> for ModelSummary {
             methods: m.methods.iter().map(|x| x.to_string()).collect(),
             checksum: m.checksum,
             source: m.source,
+            is_default: m.default,
             default: m.default,
             versions: m.versions.into_iter().map(Into::into).collect(),
         }

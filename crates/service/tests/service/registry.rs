@@ -1347,3 +1347,72 @@ async fn percent_encoded_actions_are_the_actions() {
         "{e}"
     );
 }
+
+/// The field names of `message NAME { ... }` in the service's .proto file.
+fn proto_fields(message: &str) -> Vec<String> {
+    let text = include_str!("../../../../proto/facepose/v1/pose.proto");
+    let start = text
+        .find(&format!("message {message} {{"))
+        .unwrap_or_else(|| panic!("no message {message}"));
+    let body = &text[start..start + text[start..].find("\n}").unwrap()];
+    body.lines()
+        .skip(1)
+        .map(str::trim)
+        .filter(|l| !l.starts_with("//") && l.contains(" = "))
+        .map(|l| {
+            l.split(" = ")
+                .next()
+                .unwrap()
+                .split_whitespace()
+                .last()
+                .unwrap()
+                .to_string()
+        })
+        .collect()
+}
+
+/// Every field of `message` is a key of the HTTP JSON `object`: one name for one thing.
+fn assert_same_names(message: &str, object: &Value, transport_only: &[&str]) {
+    for field in proto_fields(message) {
+        if transport_only.contains(&field.as_str()) {
+            continue;
+        }
+        assert!(
+            object.get(&field).is_some(),
+            "gRPC {message}.{field} has no HTTP key of that name in {object}"
+        );
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn http_json_uses_the_grpc_field_names() {
+    let dir = TempDir::new("names");
+    place_default_copy(dir.path(), "2");
+    let server = Server::start(&["--models", dir.arg()]);
+    let c = client();
+    let (_, v) = get(&c, &server, "/v1/models").await;
+    let m = &v["models"][0];
+    assert_same_names("ModelInfo", m, &[]);
+    assert_same_names("SchemeInfo", &m["schemes"][0], &[]);
+    // The first name of is_default stays for older clients.
+    assert_eq!(
+        (&m["is_default"], &m["default"]),
+        (&json!(true), &json!(true))
+    );
+    let (_, v) = get(&c, &server, "/v1/models/default/versions").await;
+    assert_same_names("ListVersionsResponse", &v, &[]);
+    assert_same_names("VersionInfo", &v["versions"][0], &[]);
+    let (_, v) = get(&c, &server, "/v1/models/default").await;
+    assert_same_names("ModelInfo", &v, &[]);
+    let pose: Value = c
+        .post(server.url("/v1/pose"))
+        .json(&json!({"landmarks": face68(20.0, 5.0, 0.0), "method": "fit"}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    // `smoothed` belongs to the gRPC stream; `translation` comes only with a camera.
+    assert_same_names("Pose", &pose, &["smoothed", "translation"]);
+}
