@@ -13,5 +13,6 @@ mod detectors;
 mod eval_paper;
 mod hpr_mesh;
 mod model_bundle;
+mod opencv_frame;
 mod service_process;
 mod sfm_bfm;
