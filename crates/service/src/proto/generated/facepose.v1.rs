@@ -284,8 +284,8 @@ pub struct TrainingOptions {
     /// Candidate ridge parameters (the one with the lowest validation error is kept).
     #[prost(double, repeated, tag = "4")]
     pub epsilons: ::prost::alloc::vec::Vec<f64>,
-    /// Sub-schemes to serve besides the model's own; unset: inner51 and five for ibug68, five
-    /// for other schemes.
+    /// Sub-schemes to serve besides the model's own; unset: inner51, five and dlib5 for ibug68,
+    /// five for other schemes.
     #[prost(message, optional, tag = "5")]
     pub subsets: ::core::option::Option<SchemeList>,
     /// Principal components of the shape basis for fit-shape (0: none); default 40.

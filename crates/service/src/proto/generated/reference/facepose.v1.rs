@@ -26,7 +26,8 @@ pub struct Camera {
 /// One face to estimate.
 #[derive(Clone, PartialEq, ::prost::Message)]
 pub struct Face {
-    /// The landmarks, in the order of the scheme (68 for ibug68, 51 for inner51, 5 for five).
+    /// The landmarks, in the order of the scheme (68 for ibug68, 51 for inner51, 5 for five and
+    /// for dlib5, two different point sets: docs/FORMATS.md).
     /// Set these or `xy`, not both.
     #[prost(message, repeated, tag = "1")]
     pub landmarks: ::prost::alloc::vec::Vec<Landmark>,
@@ -352,8 +353,8 @@ pub struct TrainingOptions {
     /// Candidate ridge parameters (the one with the lowest validation error is kept).
     #[prost(double, repeated, tag = "4")]
     pub epsilons: ::prost::alloc::vec::Vec<f64>,
-    /// Sub-schemes to serve besides the model's own; unset: inner51 and five for ibug68, five
-    /// for other schemes.
+    /// Sub-schemes to serve besides the model's own; unset: inner51, five and dlib5 for ibug68,
+    /// five for other schemes.
     #[prost(message, optional, tag = "5")]
     pub subsets: ::core::option::Option<SchemeList>,
     /// Principal components of the shape basis for fit-shape (0: none); default 40.
