@@ -11,6 +11,8 @@ pub use facepose_app::Limits;
 use facepose_app::Settings;
 use facepose_app::auth::{AdminToken, check_token};
 
+pub use crate::http::cors::CorsOrigins;
+
 /// Log line format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum LogFormat {
@@ -111,6 +113,13 @@ pub struct ServeArgs {
     /// `all` keeps every version.
     #[arg(long, env = "FACEPOSE_KEEP_INACTIVE_VERSIONS", default_value = "10")]
     pub keep_inactive_versions: String,
+    /// Origins whose web pages may call the HTTP API from a browser (CORS): a comma-separated
+    /// list of `scheme://host[:port]` as browsers send them (e.g.
+    /// https://app.example.com,http://localhost:3000), or `*` for every origin. Listed origins
+    /// may call every `/v1` route (admin routes still need the token); `*` opens only the routes
+    /// that need no admin token. Default: none (no CORS headers).
+    #[arg(long, env = "FACEPOSE_CORS_ORIGINS")]
+    pub cors_origins: Option<String>,
 }
 
 /// The environment variable holding the admin token (read directly, never a flag: a flag
@@ -134,6 +143,8 @@ pub struct Config {
     pub replica: String,
     /// `None`: every version is kept.
     pub keep_inactive_versions: Option<usize>,
+    /// `None`: CORS off.
+    pub cors_origins: Option<CorsOrigins>,
 }
 
 impl Config {
@@ -297,6 +308,10 @@ impl ServeArgs {
                 )
             })?),
         };
+        let cors_origins = match &self.cors_origins {
+            Some(text) => CorsOrigins::parse(text).map_err(|r| bad("cors-origins", r))?,
+            None => None,
+        };
         let connections = self.connection_limits()?;
         let workers = match self.workers {
             Some(w) => positive("workers", w)?,
@@ -307,6 +322,7 @@ impl ServeArgs {
         Ok(Config {
             addr,
             keep_inactive_versions,
+            cors_origins,
             models: self.models.clone(),
             limits,
             drain_timeout: parse_duration(&self.drain_timeout)
@@ -466,6 +482,10 @@ mod tests {
                 "--max-concurrency",
             ),
             (&["--max-streams", "0"][..], "--max-streams"),
+            (
+                &["--cors-origins", "https://app.example.com/"][..],
+                "--cors-origins",
+            ),
             (
                 &["--max-queued-jobs", "18446744073709551615"][..],
                 "--max-queued-jobs",

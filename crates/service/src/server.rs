@@ -23,6 +23,7 @@ use tokio::net::TcpListener;
 use tracing::Instrument;
 
 use crate::config::{Config, ConfigError, LogFormat, ServeArgs};
+use crate::http::cors::CorsOrigins;
 use crate::{grpc, http, proto};
 
 /// Why the service could not start or serve.
@@ -150,8 +151,9 @@ pub async fn serve(
 
 /// The routers of `app`: gRPC from an empty axum router (tonic's default fallback would answer
 /// unknown REST paths with gRPC errors), merged with the HTTP API, one fallback for both, the
-/// request observer around everything.
-pub fn routers(app: &Arc<App>) -> Result<Router, ServeError> {
+/// request observer around everything. With `cors` (`--cors-origins`), the HTTP routes answer
+/// browsers of those origins (`http::cors`); the gRPC routes never see that layer.
+pub fn routers(app: &Arc<App>, cors: Option<&CorsOrigins>) -> Result<Router, ServeError> {
     let max_body = app.limits.max_body;
     let pose = proto::pose_service_server::PoseServiceServer::new(grpc::PoseApi::new(app.clone()))
         .max_decoding_message_size(max_body);
@@ -185,7 +187,11 @@ pub fn routers(app: &Arc<App>) -> Result<Router, ServeError> {
                 })
                 .service(pose),
         );
-    let (api, _) = http::router(app);
+    let (api, doc) = http::router(app);
+    let api = match cors {
+        Some(origins) => http::cors::layer(api, http::cors::CorsPolicy::new(&doc, origins)),
+        None => api,
+    };
     Ok(api
         .merge(grpc)
         .fallback(http::fallback)
@@ -202,7 +208,7 @@ async fn serve_app(
     shutdown: impl Future<Output = ()> + Send + 'static,
     started: Instant,
 ) -> Result<(), ServeError> {
-    let router = routers(app)?;
+    let router = routers(app, cfg.cors_origins.as_ref())?;
     let addr = listener.local_addr()?;
     app.lifecycle.serving();
     tracing::info!(

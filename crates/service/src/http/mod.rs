@@ -8,10 +8,11 @@
 //! - [`retrain`]: `POST /v1/models` (an upload becomes a job), the jobs.
 //! - [`ops`]: `/healthz`, `/readyz`, `/metrics`, `/openapi.json`.
 //! - [`body`], [`request_json`]: reading request bodies; [`middleware`]: limits, request ids,
-//!   metrics and logs.
+//!   metrics and logs; [`cors`]: the answers to browsers of other origins (`--cors-origins`).
 
 pub mod body;
 pub mod body_guard;
+pub mod cors;
 pub mod error;
 pub mod middleware;
 pub mod models;
@@ -135,8 +136,8 @@ mod tests {
     use super::*;
     use serde_json::Value;
 
-    /// The OpenAPI document as the server serves it, as JSON.
-    fn document() -> Value {
+    /// The OpenAPI document as the server serves it.
+    pub(super) fn document_of() -> utoipa::openapi::OpenApi {
         let settings = facepose_app::Settings {
             models: None,
             limits: facepose_app::Limits {
@@ -161,8 +162,12 @@ mod tests {
             facepose_app::registry::load_models(None).unwrap(),
             tracing::Span::none(),
         );
-        let (_, doc) = router(&app);
-        serde_json::from_str(&doc.to_json().unwrap()).unwrap()
+        router(&app).1
+    }
+
+    /// The OpenAPI document as the server serves it, as JSON.
+    fn document() -> Value {
+        serde_json::from_str(&document_of().to_json().unwrap()).unwrap()
     }
 
     const METHODS: [&str; 8] = [

@@ -830,3 +830,322 @@ async fn a_batch_outside_its_schema_is_refused_whole() {
         "{v}"
     );
 }
+
+/// A browser's preflight, as Chromium sends it before a `fetch()` of another origin.
+async fn preflight(
+    c: &reqwest::Client,
+    url: &str,
+    origin: &str,
+    method: &str,
+    headers: &str,
+) -> reqwest::Response {
+    let mut r = c
+        .request(reqwest::Method::OPTIONS, url)
+        .header("origin", origin)
+        .header("access-control-request-method", method);
+    if !headers.is_empty() {
+        r = r.header("access-control-request-headers", headers);
+    }
+    r.send().await.unwrap()
+}
+
+fn header<'a>(r: &'a reqwest::Response, name: &str) -> Option<&'a str> {
+    r.headers().get(name).map(|v| v.to_str().unwrap())
+}
+
+/// The comma-separated values of a header, in lower case.
+fn header_list(r: &reqwest::Response, name: &str) -> Vec<String> {
+    header(r, name)
+        .unwrap_or_default()
+        .split(',')
+        .map(|s| s.trim().to_ascii_lowercase())
+        .filter(|s| !s.is_empty())
+        .collect()
+}
+
+/// An answer a browser accepts for a call of `method` with `headers` from `origin`.
+fn assert_preflight_allows(r: &reqwest::Response, origin: &str, method: &str, headers: &[&str]) {
+    assert!(
+        r.status() == StatusCode::OK || r.status() == StatusCode::NO_CONTENT,
+        "{}",
+        r.status()
+    );
+    assert_eq!(
+        header(r, "access-control-allow-origin"),
+        Some(origin),
+        "{r:?}"
+    );
+    assert!(
+        header_list(r, "access-control-allow-methods").contains(&method.to_ascii_lowercase()),
+        "{r:?}"
+    );
+    let allowed = header_list(r, "access-control-allow-headers");
+    for h in headers {
+        assert!(allowed.iter().any(|a| a == h), "{h} not allowed: {r:?}");
+    }
+    assert_eq!(header(r, "access-control-max-age"), Some("600"), "{r:?}");
+    assert_eq!(header(r, "access-control-allow-credentials"), None, "{r:?}");
+}
+
+/// A preflight answer a browser refuses: no allowed origin.
+fn assert_preflight_refused(r: &reqwest::Response) {
+    assert_eq!(header(r, "access-control-allow-origin"), None, "{r:?}");
+    assert!(
+        !header_list(r, "access-control-allow-headers").contains(&"authorization".to_string()),
+        "{r:?}"
+    );
+}
+
+#[tokio::test]
+async fn cors_opens_every_v1_route_to_listed_origins_only() {
+    use facepose_testkit::registry::ADMIN_TOKEN;
+    let app = "https://app.example.com";
+    let server = Server::start_admin(
+        &["--cors-origins", &format!("{app},http://localhost:3000")],
+        ADMIN_TOKEN,
+    );
+    let c = reqwest::Client::new();
+    let pose = server.url("/v1/pose");
+
+    // Chromium's preflight of fetch(POST, content-type: application/json).
+    let r = preflight(&c, &pose, app, "POST", "content-type").await;
+    assert_preflight_allows(&r, app, "POST", &["content-type", "x-request-id"]);
+    // No admin token on the pose routes: authorization is not offered there.
+    assert!(!header_list(&r, "access-control-allow-headers").contains(&"authorization".into()));
+    assert!(header(&r, "x-request-id").is_some(), "{r:?}");
+    let r = preflight(
+        &c,
+        &server.url("/v1/pose:batch"),
+        "http://localhost:3000",
+        "POST",
+        "content-type,x-request-id",
+    )
+    .await;
+    assert_preflight_allows(
+        &r,
+        "http://localhost:3000",
+        "POST",
+        &["content-type", "x-request-id"],
+    );
+
+    // The call itself: the pose, readable by the page, with its request id exposed.
+    let r = c
+        .post(&pose)
+        .header("origin", app)
+        .header("x-request-id", "cors-1")
+        .json(&json!({"landmarks": face68(20.0, -5.0, 3.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(header(&r, "access-control-allow-origin"), Some(app));
+    assert!(header_list(&r, "access-control-expose-headers").contains(&"x-request-id".into()));
+    assert!(header_list(&r, "vary").contains(&"origin".into()), "{r:?}");
+    assert_eq!(header(&r, "x-request-id"), Some("cors-1"));
+    assert_pose(&r.json::<Value>().await.unwrap(), (20.0, -5.0, 3.0), 0.5);
+    // An error answer is readable too (the page can show its message).
+    let r = c
+        .post(&pose)
+        .header("origin", app)
+        .json(&json!({"landmarks": [[1, 2]]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    assert_eq!(header(&r, "access-control-allow-origin"), Some(app));
+
+    // The read-only model routes.
+    for path in [
+        "/v1/models",
+        "/v1/models/default",
+        "/v1/models/default/versions",
+        "/v1/models/jobs/j-nope",
+    ] {
+        let r = preflight(&c, &server.url(path), app, "GET", "x-request-id").await;
+        assert_preflight_allows(&r, app, "GET", &["x-request-id"]);
+        let r = c
+            .get(server.url(path))
+            .header("origin", app)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(
+            header(&r, "access-control-allow-origin"),
+            Some(app),
+            "{path}"
+        );
+    }
+
+    // Admin routes: to listed origins, with authorization; the preflight never meets the
+    // admin check (no token sent) nor the 405 of a route without OPTIONS.
+    for (path, method) in [
+        ("/v1/models", "POST"),
+        ("/v1/models/default/versions/1:activate", "POST"),
+        ("/v1/models/default/versions/1", "DELETE"),
+        ("/v1/models/jobs/j-nope:cancel", "POST"),
+    ] {
+        let r = preflight(
+            &c,
+            &server.url(path),
+            app,
+            method,
+            "authorization,content-type",
+        )
+        .await;
+        assert_preflight_allows(&r, app, method, &["authorization", "content-type"]);
+    }
+    let r = c
+        .post(server.url("/v1/models/jobs/j-nope:cancel"))
+        .header("origin", app)
+        .bearer_auth(ADMIN_TOKEN)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    assert_eq!(header(&r, "access-control-allow-origin"), Some(app));
+
+    // Another origin gets nothing it could use, preflight or call.
+    let evil = "https://evil.example";
+    for (path, method) in [("/v1/pose", "POST"), ("/v1/models", "POST")] {
+        let r = preflight(&c, &server.url(path), evil, method, "content-type").await;
+        assert_preflight_refused(&r);
+    }
+    let r = c
+        .post(&pose)
+        .header("origin", evil)
+        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(header(&r, "access-control-allow-origin"), None);
+    // A method the route does not have, and the operational routes: not opened.
+    let r = preflight(&c, &pose, app, "PUT", "").await;
+    assert_preflight_refused(&r);
+    let r = preflight(&c, &server.url("/metrics"), app, "GET", "").await;
+    assert_preflight_refused(&r);
+    // An OPTIONS that is no preflight is the 405 it always was.
+    let r = c
+        .request(reqwest::Method::OPTIONS, &pose)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::METHOD_NOT_ALLOWED);
+    assert_eq!(header(&r, "access-control-allow-origin"), None);
+
+    // Preflights count as answered (200), never as refusals.
+    let metrics = facepose_testkit::registry::metrics_text(&c, &server).await;
+    assert!(
+        metrics.contains(
+            r#"facepose_http_requests_total{route="/v1/pose",method="OPTIONS",status="200"} "#
+        ),
+        "{metrics}"
+    );
+    for line in metrics
+        .lines()
+        .filter(|l| l.starts_with("facepose_http_requests_total{") && l.contains("OPTIONS"))
+    {
+        assert!(
+            line.contains(r#"status="200""#) || line.contains(r#"status="405""#),
+            "{line}"
+        );
+    }
+}
+
+#[tokio::test]
+async fn cors_any_origin_opens_the_routes_without_the_admin_token() {
+    use facepose_testkit::registry::ADMIN_TOKEN;
+    let server = Server::start_admin(&["--cors-origins", "*"], ADMIN_TOKEN);
+    let c = reqwest::Client::new();
+    let origin = "https://anywhere.example";
+    for (path, method) in [
+        ("/v1/pose", "POST"),
+        ("/v1/pose:batch", "POST"),
+        ("/v1/models", "GET"),
+        ("/v1/models/default/versions", "GET"),
+        ("/v1/models/jobs/j-nope", "GET"),
+    ] {
+        let r = preflight(&c, &server.url(path), origin, method, "content-type").await;
+        assert_preflight_allows(&r, "*", method, &["content-type"]);
+    }
+    let r = c
+        .post(server.url("/v1/pose"))
+        .header("origin", origin)
+        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(header(&r, "access-control-allow-origin"), Some("*"));
+
+    // The admin routes are not opened to "*", preflight or call, token or not.
+    for (path, method) in [
+        ("/v1/models", "POST"),
+        ("/v1/models/default/versions/1:activate", "POST"),
+        ("/v1/models/default/versions/1", "DELETE"),
+        ("/v1/models/jobs/j-nope:cancel", "POST"),
+    ] {
+        let r = preflight(
+            &c,
+            &server.url(path),
+            origin,
+            method,
+            "authorization,content-type",
+        )
+        .await;
+        assert_preflight_refused(&r);
+        assert!(
+            header(&r, "access-control-allow-methods").is_none(),
+            "{r:?}"
+        );
+    }
+    let r = c
+        .post(server.url("/v1/models/jobs/j-nope:cancel"))
+        .header("origin", origin)
+        .bearer_auth(ADMIN_TOKEN)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    assert_eq!(header(&r, "access-control-allow-origin"), None);
+
+    // gRPC on the same port is untouched.
+    let mut g = server.grpc().await;
+    let resp = g
+        .estimate(facepose_service::proto::EstimateRequest {
+            face: Some(proto_face(&face68(15.0, 5.0, -4.0), "", "", "")),
+            model: String::new(),
+        })
+        .await
+        .unwrap();
+    assert!(resp.metadata().get("access-control-allow-origin").is_none());
+    assert_pose_flat(resp.into_inner().pose.unwrap(), (15.0, 5.0, -4.0));
+}
+
+fn assert_pose_flat(p: facepose_service::proto::Pose, (yaw, pitch, roll): (f64, f64, f64)) {
+    let err = geodesic_deg(&rotation_flat(&p.rotation), &rotation(yaw, pitch, roll));
+    assert!(err < 0.5, "{p:?}");
+}
+
+#[tokio::test]
+async fn cors_is_off_by_default() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose");
+    let r = preflight(&c, &url, "https://app.example.com", "POST", "content-type").await;
+    assert_eq!(r.status(), StatusCode::METHOD_NOT_ALLOWED);
+    let r = c
+        .post(&url)
+        .header("origin", "https://app.example.com")
+        .json(&json!({"landmarks": face68(0.0, 0.0, 0.0)}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::OK);
+    let cors: Vec<_> = r
+        .headers()
+        .keys()
+        .filter(|k| k.as_str().starts_with("access-control-") || *k == "vary")
+        .collect();
+    assert!(cors.is_empty(), "{cors:?}");
+}
