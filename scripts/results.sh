@@ -3,8 +3,9 @@
 # `facepose eval`, `hpr` and `eval-sfm`, and the criterion benches) and writes each output under
 # the command that produced it. Nothing in RESULTS.md is typed by hand but the prose below.
 #
-#   scripts/results.sh             # everything (about 5 minutes on 2 cores, benches included)
+#   scripts/results.sh             # everything (about 6 minutes on 2 cores, benches included)
 #   scripts/results.sh --no-bench  # reuse the last bench output kept in docs/results/
+#   scripts/results.sh --no-peers  # reuse the last OpenCV comparison (scripts/peers.sh)
 #
 # Needs the shared data at ../shared/data (or FACEPOSE_DATA).
 set -euo pipefail
@@ -13,10 +14,12 @@ export FACEPOSE_DATA="${FACEPOSE_DATA:-../shared/data}"
 export CARGO_TERM_COLOR=never
 
 bench=1
+peers=1
 for arg in "$@"; do
   case "$arg" in
     --no-bench) bench=0 ;;
-    *) echo "usage: $0 [--no-bench]" >&2; exit 2 ;;
+    --no-peers) peers=0 ;;
+    *) echo "usage: $0 [--no-bench] [--no-peers]" >&2; exit 2 ;;
   esac
 done
 
@@ -55,6 +58,10 @@ run /dev/null "$paper_cmd"
 run /dev/null "$real_cmd"
 run docs/results/hpr.md "$hpr_cmd"
 run docs/results/sfm.md "$sfm_cmd"
+peers_cmd="scripts/peers.sh"
+if [ "$peers" = 1 ]; then
+  run /dev/null "$peers_cmd docs/results/peers.md"
+fi
 # The convention picture of the README (drawn from the code's own convention).
 run /dev/null "cargo run --release --quiet --example convention docs/convention.png"
 
@@ -87,6 +94,9 @@ EOF
   printf '\n## Pose estimation: real faces\n\n'
   cmd_block "$real_cmd"
   report docs/results/real
+  printf '\n## Beside OpenCV'"'"'s solvePnP with a generic face\n\n'
+  cmd_block "$peers_cmd"
+  cat docs/results/peers.md
   printf '\n## Hidden-point removal\n\n'
   cmd_block "$hpr_cmd"
   cat docs/results/hpr.md
