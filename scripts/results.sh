@@ -72,10 +72,16 @@ bench_lines() {
 hpr_bench="cargo bench --bench hpr"
 est_bench="cargo bench --bench estimate"
 train_bench="cargo bench --bench train"
+real_bench="cargo bench --bench real_faces"
+# The real-face bench also prints its per-face tables (lines from `|`, and their titles).
+real_lines() {
+  grep -E 'time:|thrpt:|^\||^[A-Z]' -B1 | grep -v -E '^(--|Benchmarking|Found|Warning|[[:space:]]*$)' || true
+}
 if [ "$bench" = 1 ]; then
   run docs/results/bench-hpr.txt "$hpr_bench 2>/dev/null | bench_lines"
   run docs/results/bench-estimate.txt "$est_bench 2>/dev/null | bench_lines"
   run docs/results/bench-train.txt "$train_bench 2>/dev/null | bench_lines"
+  run docs/results/bench-real.txt "$real_bench 2>/dev/null | real_lines"
 fi
 
 {
@@ -110,15 +116,15 @@ EOF
 EOF
   cmd_block "$sfm_cmd"
   cat docs/results/sfm.md
-  printf '\n## Speed\n\nCriterion, one core: HPR and the estimators on one 68-point face and its five points; training\n(the Procrustes mean, every subset, the ridge parameter chosen on validation faces) on the\npaper'"'"'s set-up and on 10,000 faces drawn from the morphable model (crates/core/benches/train.rs).\n\n'
+  printf '\n## Speed\n\nCriterion, one core: HPR and the estimators on one 68-point face and its five points; training\n(the Procrustes mean, every subset, the ridge parameter chosen on validation faces) on the\npaper'"'"'s set-up and on 10,000 faces drawn from the morphable model (crates/core/benches/train.rs);\nevery method over the AFLW2000-3D dev faces, with the per-face distribution and the regression'"'"'s\ncost for a missing-point pattern it has not seen (crates/core/benches/real_faces.rs).\n\n'
   if [ "$bench" = 1 ]; then
     # The figures are the machine's: say which one made them.
     printf 'Measured on: %s, %s cores, %s.\n\n' "$(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)" "$(nproc)" "$(date -u +%F)" >docs/results/bench-machine.txt
   fi
   cat docs/results/bench-machine.txt 2>/dev/null || true
-  for b in hpr estimate train; do
+  for b in hpr estimate train real; do
     if [ -s "docs/results/bench-$b.txt" ]; then
-      cmd_block "cargo bench --bench $b"
+      cmd_block "cargo bench --bench $([ "$b" = real ] && echo real_faces || echo "$b")"
       printf '```\n'
       cat "docs/results/bench-$b.txt"
       printf '```\n\n'
