@@ -20,6 +20,7 @@ use facepose_core::pose::Method;
 use facepose_core::shape::Scheme;
 use facepose_files::data::{AflwFace, load_aflw, load_population};
 
+use super::progress::{QuietArg, Reporter};
 use super::{CliError, DataArg};
 
 #[derive(Clone, Copy, ValueEnum, PartialEq, Eq)]
@@ -73,6 +74,8 @@ pub struct EvalArgs {
     seed: u64,
     #[command(flatten)]
     data: DataArg,
+    #[command(flatten)]
+    quiet: QuietArg,
 }
 
 const HEATMAP_PNG: &str = "paper-heatmap.png";
@@ -81,6 +84,7 @@ const REAL_PNG: &str = "real-error-by-yaw.png";
 const STYLE_PNG: &str = "real-landmarks-large-yaw.png";
 
 pub fn run(a: EvalArgs) -> Result<(), CliError> {
+    let progress = Reporter::new(&a.quiet);
     let methods = a
         .methods
         .iter()
@@ -94,8 +98,9 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
     let mut json = serde_json::Map::new();
     let mut pngs: Vec<(&str, Vec<u8>)> = Vec::new();
     if matches!(a.protocol, Protocol::Paper | Protocol::All) {
-        let (text, paper) = run_paper(&a, &methods)?;
+        let (text, paper) = run_paper(&a, &methods, &progress)?;
         report.push_str(&text);
+        progress.stage("paper protocol: drawing the error maps and robustness curves");
         pngs.push((
             HEATMAP_PNG,
             heat_maps_png(
@@ -114,9 +119,11 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
         let path = a
             .data
             .or_file(a.dataset.as_deref(), "aflw2000/aflw2000_dev.jsonl")?;
+        progress.stage(format_args!("real faces: reading {}", path.display()));
         let faces = load_aflw(&path)?;
-        let (text, rows) = run_real(&a, &path, &faces, &methods)?;
+        let (text, rows) = run_real(&a, &path, &faces, &methods, &progress)?;
         report.push_str(&text);
+        progress.stage("real faces: drawing the plots");
         pngs.push((
             REAL_PNG,
             line_chart_png("Real faces: error against |yaw|", &error_by_yaw(&rows))?,
@@ -126,6 +133,10 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
     }
     print!("{report}");
     if let Some(out) = &a.out {
+        progress.stage(format_args!(
+            "writing report.md, report.json and the plots to {}",
+            out.display()
+        ));
         write(&out.join("report.md"), report.as_bytes())?;
         write(
             &out.join("report.json"),
@@ -135,6 +146,7 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
             write(&out.join(name), bytes)?;
         }
     }
+    progress.stage("done");
     Ok(())
 }
 
@@ -142,10 +154,15 @@ fn write(path: &Path, bytes: &[u8]) -> Result<(), CliError> {
     std::fs::write(path, bytes).map_err(|e| format!("cannot write {}: {e}", path.display()).into())
 }
 
-fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), CliError> {
+fn run_paper(
+    a: &EvalArgs,
+    methods: &[Method],
+    progress: &Reporter,
+) -> Result<(String, PaperReport), CliError> {
     let path = a
         .data
         .or_file(a.population.as_deref(), "bfm68/population_249.json")?;
+    progress.stage(format_args!("paper protocol: reading {}", path.display()));
     let pop = load_population(&path)?;
     let scheme = Scheme::builtin(&pop.scheme).ok_or_else(|| {
         format!(
@@ -164,6 +181,10 @@ fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), 
         .into());
     }
     let (train, test) = pop.shapes.split_at(a.train_shapes);
+    progress.stage(format_args!(
+        "paper protocol: training the model on the first {} shapes",
+        a.train_shapes
+    ));
     let t = Instant::now();
     let model = train_paper_model(&scheme, train, a.components, a.seed)?;
     let train_time = t.elapsed().as_secs_f64();
@@ -175,7 +196,7 @@ fn run_paper(a: &EvalArgs, methods: &[Method]) -> Result<(String, PaperReport), 
         ..PaperOptions::default()
     };
     let t = Instant::now();
-    let paper = paper_protocol(&model, test, &entries, &opts)?;
+    let paper = paper_protocol(&model, test, &entries, &opts, progress)?;
     let run_time = t.elapsed().as_secs_f64();
     let eps: Vec<String> = model
         .subsets
@@ -299,28 +320,34 @@ fn run_real(
     path: &Path,
     faces: &[AflwFace],
     methods: &[Method],
+    progress: &Reporter,
 ) -> Result<(String, Vec<aflw::AflwRow>), CliError> {
     let (bundle, model) = super::load_model(a.model.as_deref())?;
     let mut rows = Vec::new();
     let mut timing = Vec::new();
-    for &m in methods {
-        for s in Source::ALL {
-            // The shape fit does not take anchor means (five), the geometric method needs
-            // the nose tip and mouth corners (not in dlib5).
-            if (m == Method::FitShape && s == Source::Five)
-                || (m == Method::Geometry && s == Source::Dlib5)
-            {
-                continue;
-            }
-            let t = Instant::now();
-            let row = aflw::evaluate(&model, faces, m, s);
-            timing.push(format!(
-                "{m} on {}: {:.1} µs per face",
-                s.name(),
-                t.elapsed().as_secs_f64() * 1e6 / row.faces.max(1) as f64
-            ));
-            rows.push(row);
-        }
+    // The shape fit does not take anchor means (five), the geometric method needs the nose tip
+    // and mouth corners (not in dlib5).
+    let pairs: Vec<(Method, Source)> = methods
+        .iter()
+        .flat_map(|&m| Source::ALL.into_iter().map(move |s| (m, s)))
+        .filter(|&(m, s)| {
+            !((m == Method::FitShape && s == Source::Five)
+                || (m == Method::Geometry && s == Source::Dlib5))
+        })
+        .collect();
+    let label = format!("real faces: {} faces", faces.len());
+    let unit = "(method, landmark set) pairs";
+    progress.count(&label, 0, pairs.len(), unit);
+    for (k, &(m, s)) in pairs.iter().enumerate() {
+        let t = Instant::now();
+        let row = aflw::evaluate(&model, faces, m, s);
+        timing.push(format!(
+            "{m} on {}: {:.1} µs per face",
+            s.name(),
+            t.elapsed().as_secs_f64() * 1e6 / row.faces.max(1) as f64
+        ));
+        rows.push(row);
+        progress.count(&label, k + 1, pairs.len(), unit);
     }
     // Calibration: whether the error of `auto` is a distortion of the estimate (which a
     // recalibration could remove) or scatter around it.

@@ -7,6 +7,7 @@ use facepose_core::eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
 use facepose_core::shape::ibug68;
 use facepose_files::data::load_population;
 
+use super::progress::{QuietArg, Reporter};
 use super::{CliError, DataArg};
 
 #[derive(Args)]
@@ -19,12 +20,16 @@ pub struct EvalSfmArgs {
     seed: u64,
     #[command(flatten)]
     data: DataArg,
+    #[command(flatten)]
+    quiet: QuietArg,
 }
 
 pub fn run(a: EvalSfmArgs) -> Result<(), CliError> {
+    let progress = Reporter::new(&a.quiet);
     let path = a
         .data
         .or_file(a.population.as_deref(), "bfm68/population_249.json")?;
+    progress.stage(format_args!("reading {}", path.display()));
     let pop = load_population(&path)?;
     if pop.scheme != "ibug68" {
         return Err(format!(
@@ -46,7 +51,7 @@ pub fn run(a: EvalSfmArgs) -> Result<(), CliError> {
         noise_iod,
         missing_per_view,
     });
-    let rows = sfm_check(&pop.shapes, &ibug68(), &conditions, a.seed)?;
+    let rows = sfm_check(&pop.shapes, &ibug68(), &conditions, a.seed, &progress)?;
     println!(
         "Structure from motion on {} ({} shapes), five views within ±30° yaw, seed {}\n",
         path.display(),
@@ -54,5 +59,6 @@ pub fn run(a: EvalSfmArgs) -> Result<(), CliError> {
         a.seed
     );
     print!("{}", sfm_markdown(&rows));
+    progress.stage("done");
     Ok(())
 }

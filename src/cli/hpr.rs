@@ -8,6 +8,7 @@ use facepose_core::hpr::KatzHpr;
 use facepose_core::synth::AngleRange;
 use facepose_files::data::load_canonical_mesh;
 
+use super::progress::{QuietArg, Reporter};
 use super::{CliError, DataArg};
 
 #[derive(Args)]
@@ -29,12 +30,16 @@ pub struct HprArgs {
     json: bool,
     #[command(flatten)]
     data: DataArg,
+    #[command(flatten)]
+    quiet: QuietArg,
 }
 
 pub fn run(a: HprArgs) -> Result<(), CliError> {
+    let progress = Reporter::new(&a.quiet);
     let path = a
         .data
         .or_file(a.mesh.as_deref(), "mediapipe/canonical_face_468.json")?;
+    progress.stage(format_args!("reading {}", path.display()));
     let mesh = load_canonical_mesh(&path)?;
     let yaw = AngleRange::new(-a.max_yaw, a.max_yaw, a.step)?;
     let pitch = AngleRange::new(-a.max_pitch, a.max_pitch, a.step)?;
@@ -52,6 +57,7 @@ pub fn run(a: HprArgs) -> Result<(), CliError> {
         yaw,
         pitch,
         &katz,
+        &progress,
     )?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
@@ -66,5 +72,6 @@ pub fn run(a: HprArgs) -> Result<(), CliError> {
         );
         print!("{}", hpr_markdown(&rows));
     }
+    progress.stage("done");
     Ok(())
 }

@@ -4,6 +4,7 @@ pub mod estimate;
 pub mod eval;
 pub mod eval_sfm;
 pub mod hpr;
+pub mod progress;
 pub mod reconstruct;
 pub mod serve;
 pub mod train;

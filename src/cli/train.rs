@@ -14,6 +14,7 @@ use facepose_files::store::write_bundle_dir;
 use nalgebra::Vector3;
 
 use super::CliError;
+use super::progress::{QuietArg, Reporter};
 
 #[derive(Clone, Copy, ValueEnum)]
 pub enum Grid {
@@ -64,20 +65,26 @@ pub struct TrainArgs {
     /// Creation time to record (RFC 3339; default: now). Fix it to rebuild byte for byte.
     #[arg(long)]
     created: Option<String>,
+    #[command(flatten)]
+    quiet: QuietArg,
 }
 
 pub fn run(a: TrainArgs) -> Result<(), CliError> {
     let start = Instant::now();
+    let progress = Reporter::new(&a.quiet);
     let mut sources = Vec::new();
     let mut shapes: Vec<Vec<Vector3<f64>>> = Vec::new();
     let scheme_name;
     if let Some(views) = &a.views {
+        progress.stage(format_args!("reading {}", views.display()));
         let bytes =
             std::fs::read(views).map_err(|e| format!("cannot read {}: {e}", views.display()))?;
         let set = load_multi_view(views)?;
         let scheme = Scheme::builtin(&set.scheme)
             .ok_or_else(|| format!("{}: unknown scheme {:?}", views.display(), set.scheme))?;
         let nose = scheme.anchors.nose_tip[0];
+        let subjects = set.subjects.len();
+        progress.count("structure from motion", 0, subjects, "subjects");
         for (k, subject) in set.subjects.iter().enumerate() {
             let vs = subject
                 .views
@@ -94,11 +101,8 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
             let rec = reconstruct(&vs, SfmOptions::with_nose_tip(nose))
                 .map_err(|e| format!("{}: subject {k}: {e}", views.display()))?;
             shapes.push(rec.shape);
+            progress.count("structure from motion", k + 1, subjects, "subjects");
         }
-        eprintln!(
-            "reconstructed {} subjects by structure from motion",
-            shapes.len()
-        );
         sources.push(SourceFile {
             path: views.display().to_string(),
             sha256: sha256_hex(&bytes),
@@ -108,6 +112,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
     } else {
         let mut name = None;
         for path in &a.shapes {
+            progress.stage(format_args!("reading {}", path.display()));
             let bytes =
                 std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
             let pop = load_population(path)?;
@@ -159,7 +164,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         )
         .into());
     }
-    eprintln!(
+    progress.stage(format_args!(
         "training on {} shapes ({} grid, subsets {})",
         shapes.len(),
         match a.grid {
@@ -167,7 +172,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
             Grid::Wide => "wide",
         },
         a.subsets.join(",")
-    );
+    ));
     let opts = TrainOptions {
         regression: match a.grid {
             Grid::Paper => RegressionParams::paper(),
@@ -197,7 +202,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         None => BasisSource::Pca(a.components),
     };
     let model = train_from_population(&scheme, shapes, basis, &opts)?;
-    eprintln!("trained in {:.2?}", start.elapsed());
+    progress.stage("trained");
     let created = match a.created {
         Some(c) => c,
         None => time::OffsetDateTime::now_utc()
@@ -228,14 +233,16 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
     };
     let bundle = Bundle::from_model(&model, &opts, &name, &a.model_version, &created, provenance)?;
     write_bundle_dir(&a.out, &bundle)?;
-    eprintln!(
-        "wrote {} ({} in all)",
+    progress.stage(format_args!(
+        "wrote {} ({:.2?} in all)",
         a.out.display(),
-        format_args!("{:.2?}", start.elapsed())
-    );
+        start.elapsed()
+    ));
     Ok(())
 }
 
+/// The command line as the bundle records it: without --out (a rebuild elsewhere gives the
+/// same bytes) and without --quiet (which changes nothing in the bundle).
 fn command_without_out() -> String {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut out = Vec::new();
@@ -245,7 +252,7 @@ fn command_without_out() -> String {
             skip = false;
         } else if a == "--out" {
             skip = true;
-        } else if !a.starts_with("--out=") {
+        } else if !(a.starts_with("--out=") || a == "--quiet" || a == "-q") {
             out.push(a.clone());
         }
     }

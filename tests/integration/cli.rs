@@ -235,3 +235,83 @@ fn the_data_folder_is_found_at_run_time_and_the_error_says_where_it_looked() {
         );
     }
 }
+
+#[test]
+fn eval_sfm_reports_progress_on_stderr_and_quiet_silences_it() {
+    // A population of 8 shapes, so that the six conditions run in a moment.
+    let full: Value = serde_json::from_str(
+        &std::fs::read_to_string(common::data_file("bfm68/population_249.json")).unwrap(),
+    )
+    .unwrap();
+    let mut small = full.clone();
+    small["shapes"] = Value::Array(full["shapes"].as_array().unwrap()[..8].to_vec());
+    let dir = std::env::temp_dir().join(format!("facepose-cli-progress-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let pop = dir.join("population_8.json");
+    std::fs::write(&pop, small.to_string()).unwrap();
+    let pop = pop.to_str().unwrap();
+
+    let loud = facepose(&["eval-sfm", "--population", pop]);
+    assert!(
+        loud.status.success(),
+        "{}",
+        String::from_utf8_lossy(&loud.stderr)
+    );
+    let quiet = facepose(&["eval-sfm", "--population", pop, "--quiet"]);
+    assert!(
+        quiet.status.success(),
+        "{}",
+        String::from_utf8_lossy(&quiet.stderr)
+    );
+    std::fs::remove_dir_all(&dir).ok();
+
+    // Standard output: the report alone, the same with and without progress.
+    let stdout = String::from_utf8(loud.stdout).unwrap();
+    assert_eq!(stdout, String::from_utf8(quiet.stdout).unwrap());
+    let lines: Vec<&str> = stdout.lines().collect();
+    assert_eq!(
+        lines[0],
+        format!("Structure from motion on {pop} (8 shapes), five views within ±30° yaw, seed 2011")
+    );
+    assert!(lines[2].starts_with("| noise"), "{stdout}");
+    assert_eq!(lines.len(), 3 + 1 + 6, "{stdout}");
+    assert!(
+        lines[4..]
+            .iter()
+            .all(|l| l.split(" | ").nth(2) == Some("8")),
+        "{stdout}"
+    );
+
+    // Standard error: every line is `[elapsed s] stage`, the elapsed time never decreasing;
+    // each condition in turn starts at 0 and ends at all 8 shapes.
+    let stderr = String::from_utf8(loud.stderr).unwrap();
+    let mut last = 0.0;
+    let mut stages = Vec::new();
+    for line in stderr.lines() {
+        let (time, stage) = line
+            .strip_prefix('[')
+            .and_then(|l| l.split_once(" s] "))
+            .unwrap_or_else(|| panic!("not a progress line: {line:?}\n{stderr}"));
+        let t: f64 = time.trim().parse().unwrap();
+        assert!(t >= last, "{stderr}");
+        last = t;
+        stages.push(stage);
+    }
+    assert!(stages[0].starts_with("reading ") && stages[0].ends_with("population_8.json"));
+    let mut at = 1;
+    for c in 1..=6 {
+        let name = format!("structure from motion: condition {c}/6: ");
+        assert_eq!(stages[at], format!("{name}0/8 shapes (0%)"), "{stderr}");
+        // Lines between (at most one every 2 s) count up; the last one has the stage's time.
+        at += 1;
+        while !stages[at].contains("8/8 shapes (100%), ") {
+            assert!(stages[at].starts_with(&name), "{stderr}");
+            at += 1;
+        }
+        assert!(stages[at].starts_with(&name), "{stderr}");
+        at += 1;
+    }
+    assert_eq!(&stages[at..], ["done"], "{stderr}");
+
+    assert_eq!(String::from_utf8(quiet.stderr).unwrap(), "");
+}

@@ -14,6 +14,7 @@ use facepose_core::eval::paper::{
 };
 use facepose_core::model::PoseModel;
 use facepose_core::pose::Method;
+use facepose_core::progress::{Phase, Progress, Silent};
 use facepose_core::shape::ibug68;
 use facepose_core::synth::{AngleRange, PoseGrid};
 use facepose_files::data::load_population;
@@ -70,8 +71,38 @@ fn training_stage_on_the_mean_and_testing_stage_on_other_shapes() {
         ]
     );
     let test = &shapes[20..24];
-    let rep = paper_protocol(&model, test, &entries, &opts).unwrap();
+    let seen = std::sync::Mutex::new(Vec::<Progress>::new());
+    let record = |p: Progress| seen.lock().unwrap().push(p);
+    let rep = paper_protocol(&model, test, &entries, &opts, &record).unwrap();
     assert_eq!((rep.test_shapes, rep.poses, rep.test_views), (4, 25, 100));
+    // Progress: the three phases in order, each counting from 0 to its total one step at a
+    // time (poses of the grid; robustness conditions times entries).
+    let seen = seen.into_inner().unwrap();
+    let conditions = opts.noise.len() + opts.missing.len();
+    let mut at = 0;
+    for (phase, total) in [
+        (Phase::PaperTraining, 25),
+        (Phase::PaperTesting, 25),
+        (Phase::PaperRobustness, conditions * entries.len()),
+    ] {
+        let steps: Vec<(usize, usize)> = seen[at..]
+            .iter()
+            .take_while(|p| p.phase == phase)
+            .map(|p| (p.done, p.total))
+            .collect();
+        assert_eq!(
+            steps,
+            (0..=total).map(|d| (d, total)).collect::<Vec<_>>(),
+            "{phase:?}"
+        );
+        at += steps.len();
+    }
+    assert_eq!(
+        at,
+        seen.len(),
+        "reports after the last phase: {:?}",
+        &seen[at..]
+    );
     let row = |label: &str, stage: Stage| {
         rep.rows
             .iter()
@@ -146,7 +177,7 @@ fn training_stage_on_the_mean_and_testing_stage_on_other_shapes() {
     );
 
     // Seeded: the same run gives the same numbers.
-    let again = paper_protocol(&model, test, &entries, &opts).unwrap();
+    let again = paper_protocol(&model, test, &entries, &opts, &Silent).unwrap();
     assert_eq!(
         serde_json::to_string(&rep).unwrap(),
         serde_json::to_string(&again).unwrap()
@@ -163,7 +194,7 @@ fn the_geometric_method_reads_yaw_off_a_level_face() {
         AngleRange::fixed(0.0),
     );
     let entries = [PaperEntry::new(Method::Geometry, "five")];
-    let rep = paper_protocol(&model, &shapes[20..22], &entries, &opts).unwrap();
+    let rep = paper_protocol(&model, &shapes[20..22], &entries, &opts, &Silent).unwrap();
     let t = &rep.rows[0];
     assert_eq!((t.stage, t.estimates, t.failures), (Stage::Training, 7, 0));
     assert!(t.mae_yaw < 1.0 && t.mae_pitch < 1.0, "{t:?}");
@@ -176,15 +207,15 @@ fn bad_parameters_are_errors() {
     let entries = [PaperEntry::new(Method::Fit, "ibug68")];
     let r = AngleRange::fixed(0.0);
     let mut opts = small_options(r, r);
-    assert!(paper_protocol(&model, &[], &entries, &opts).is_err());
+    assert!(paper_protocol(&model, &[], &entries, &opts, &Silent).is_err());
     opts.stride = 0;
-    assert!(paper_protocol(&model, &shapes[20..21], &entries, &opts).is_err());
+    assert!(paper_protocol(&model, &shapes[20..21], &entries, &opts, &Silent).is_err());
     opts.stride = 1;
     opts.iod_px = (0.0, 10.0);
-    assert!(paper_protocol(&model, &shapes[20..21], &entries, &opts).is_err());
+    assert!(paper_protocol(&model, &shapes[20..21], &entries, &opts, &Silent).is_err());
     opts.iod_px = (60.0, 100.0);
     let wrong = vec![shapes[20][..5].to_vec()];
-    assert!(paper_protocol(&model, &wrong, &entries, &opts).is_err());
+    assert!(paper_protocol(&model, &wrong, &entries, &opts, &Silent).is_err());
 }
 
 #[test]

@@ -5,6 +5,7 @@ use crate::common;
 
 use facepose_core::eval::hpr_table::{HprMethod, hpr_table};
 use facepose_core::hpr::KatzHpr;
+use facepose_core::progress::Silent;
 use facepose_core::synth::AngleRange;
 use facepose_files::data::load_canonical_mesh;
 
@@ -22,6 +23,7 @@ fn paper_hpr_beats_the_goal_and_the_baseline() {
             camera_distance: 10.0,
             gamma: 2.0,
         }],
+        &Silent,
     )
     .unwrap();
     let acc = |points: &str, paper: bool| {

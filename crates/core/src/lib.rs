@@ -15,6 +15,7 @@ pub mod hpr;
 pub mod model;
 pub mod parallel;
 pub mod pose;
+pub mod progress;
 pub mod record;
 pub mod sfm;
 pub mod shape;

@@ -14,6 +14,7 @@ use serde::Serialize;
 use crate::error::Result;
 use crate::geometry::EulerAngles;
 use crate::hpr::{Confusion, DepthTest, KatzHpr, MeshVisibility, PaperHpr, SurfacePoint};
+use crate::progress::{Observer, Phase, PhaseReport};
 use crate::synth::AngleRange;
 
 /// The methods compared.
@@ -58,7 +59,8 @@ struct Acc {
     bands: [Confusion; 3],
 }
 
-/// Runs every method over the grid for the three point sets.
+/// Runs every method over the grid for the three point sets. `progress` sees
+/// [`Phase::HprGrid`], one step per pose; [`crate::progress::Silent`] for none.
 pub fn hpr_table(
     vertices: &[Vector3<f64>],
     triangles: &[[usize; 3]],
@@ -66,6 +68,7 @@ pub fn hpr_table(
     yaw: AngleRange,
     pitch: AngleRange,
     katz: &[KatzHpr],
+    progress: &dyn Observer,
 ) -> Result<Vec<HprRow>> {
     let truth = MeshVisibility::new(vertices, triangles.to_vec())?.with_back_face_rule(true);
     if let Some(k) = ibug68
@@ -125,6 +128,7 @@ pub fn hpr_table(
             })
         })
         .collect();
+    let mut report = PhaseReport::start(progress, Phase::HprGrid, yaw.len() * pitch.len());
     for y in yaw.values() {
         let band = ((y.abs() / 30.0) as usize).min(2);
         for p in pitch.values() {
@@ -152,8 +156,10 @@ pub fn hpr_table(
                     a[k].bands[band].add_all(pred, t);
                 }
             }
+            report.step();
         }
     }
+    report.finish();
     let mut rows = Vec::new();
     for (k, points) in POINT_SETS.iter().enumerate() {
         for (m, a) in methods.iter().zip(&acc) {

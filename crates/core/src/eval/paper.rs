@@ -42,6 +42,7 @@ use crate::model::{
     BasisSource, PoseModel, RegressionParams, Subset, TrainOptions, train_from_population,
 };
 use crate::pose::{Method, estimate};
+use crate::progress::{Observer, Phase, PhaseReport};
 use crate::shape::{Scheme, Shape2};
 use crate::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
 
@@ -379,13 +380,16 @@ impl Acc {
 type Cells = Vec<Vec<(f64, usize)>>;
 
 /// Runs every entry on `shapes` over the grid; `keep(k, j)` selects shape `k` at pose `j`.
-/// Returns the sums and, per entry, the summed error and count per pose.
+/// Returns the sums and, per entry, the summed error and count per pose. Reports `phase`, one
+/// step per pose.
 fn run_grid(
     model: &PoseModel,
     shapes: &[TestShape],
     entries: &[PaperEntry],
     opts: &PaperOptions,
     keep: &dyn Fn(usize, usize) -> bool,
+    progress: &dyn Observer,
+    phase: Phase,
 ) -> Result<(Vec<Acc>, Cells)> {
     let subsets = entries
         .iter()
@@ -398,6 +402,7 @@ fn run_grid(
         .iter()
         .map(|s| ViewSynthesizer::new(&s.points, &s.hpr))
         .collect::<Result<Vec<_>>>()?;
+    let mut report = PhaseReport::start(progress, phase, poses.len());
     // Pose-major, so that the regression's per-pattern solutions are reused while warm.
     for (j, &angles) in poses.iter().enumerate() {
         for (k, shape) in shapes.iter().enumerate() {
@@ -415,7 +420,9 @@ fn run_grid(
                 }
             }
         }
+        report.step();
     }
+    report.finish();
     Ok((acc, cells))
 }
 
@@ -467,11 +474,13 @@ fn perturb(lm: &Shape2, p: Perturbation, iod_px: f64, rng: &mut StdRng) -> Resul
     }
 }
 
+/// The robustness rows; reports [`Phase::PaperRobustness`], one step per (condition, entry).
 fn robustness(
     model: &PoseModel,
     shapes: &[TestShape],
     entries: &[PaperEntry],
     opts: &PaperOptions,
+    progress: &dyn Observer,
 ) -> Result<Vec<RobustnessRow>> {
     let subsets = entries
         .iter()
@@ -510,6 +519,11 @@ fn robustness(
         .chain(opts.missing.iter().map(|&k| Perturbation::Missing(k)))
         .collect();
     let mut rows = Vec::new();
+    let mut report = PhaseReport::start(
+        progress,
+        Phase::PaperRobustness,
+        conditions.len() * entries.len(),
+    );
     for (ci, &p) in conditions.iter().enumerate() {
         for (entry, subset) in entries.iter().zip(&subsets) {
             let mut acc = Acc::default();
@@ -534,18 +548,23 @@ fn robustness(
                 mae_pitch: pi,
                 mae: 0.5 * (y + pi),
             });
+            report.step();
         }
     }
+    report.finish();
     Ok(rows)
 }
 
 /// Runs the protocol: `model` (from [`train_paper_model`]) on its own mean shape (training
 /// stage) and on `test_shapes` (model frame, mm, frontal, all points; testing stage).
+/// `progress` sees [`Phase::PaperTraining`] and [`Phase::PaperTesting`] (poses of the grid),
+/// then [`Phase::PaperRobustness`]; [`crate::progress::Silent`] for none.
 pub fn paper_protocol(
     model: &PoseModel,
     test_shapes: &[Vec<Vector3<f64>>],
     entries: &[PaperEntry],
     opts: &PaperOptions,
+    progress: &dyn Observer,
 ) -> Result<PaperReport> {
     if test_shapes.is_empty() {
         return Err(Error::too_few("test shapes", 1, 0));
@@ -569,8 +588,24 @@ pub fn paper_protocol(
         .map(|s| TestShape::new(model, s))
         .collect::<Result<Vec<_>>>()?;
 
-    let (train_acc, _) = run_grid(model, &mean, entries, opts, &|_, _| true)?;
-    let (test_acc, cells) = run_grid(model, &tests, entries, opts, &|k, j| keeps(opts, k, j))?;
+    let (train_acc, _) = run_grid(
+        model,
+        &mean,
+        entries,
+        opts,
+        &|_, _| true,
+        progress,
+        Phase::PaperTraining,
+    )?;
+    let (test_acc, cells) = run_grid(
+        model,
+        &tests,
+        entries,
+        opts,
+        &|k, j| keeps(opts, k, j),
+        progress,
+        Phase::PaperTesting,
+    )?;
     let mut rows = Vec::new();
     for (t, s) in rows_of(model, entries, &train_acc, Stage::Training)
         .into_iter()
@@ -607,7 +642,7 @@ pub fn paper_protocol(
             }
         })
         .collect();
-    let robustness = robustness(model, &tests, entries, opts)?;
+    let robustness = robustness(model, &tests, entries, opts, progress)?;
     Ok(PaperReport {
         options: opts.clone(),
         test_shapes: tests.len(),

@@ -12,6 +12,7 @@ use serde::Serialize;
 use crate::error::Result;
 use crate::geometry::procrustes::rms_distance3;
 use crate::geometry::{EulerAngles, Scaling, WeakPerspective, align3};
+use crate::progress::{Observer, Phase, PhaseReport};
 use crate::sfm::{SfmOptions, reconstruct};
 use crate::shape::{Scheme, Shape2};
 
@@ -89,12 +90,14 @@ fn outer_eye_distance(shape: &[Vector3<f64>], left: &[usize], right: &[usize]) -
     (outer(left, centre(right)) - outer(right, centre(left))).norm()
 }
 
-/// Runs the protocol on `shapes` (ibug68, mm) for each condition.
+/// Runs the protocol on `shapes` (ibug68, mm) for each condition. `progress` sees one
+/// [`Phase::Sfm`] per condition, one step per shape; [`crate::progress::Silent`] for none.
 pub fn sfm_check(
     shapes: &[Vec<Vector3<f64>>],
     scheme: &Scheme,
     conditions: &[SfmCondition],
     seed: u64,
+    progress: &dyn Observer,
 ) -> Result<Vec<SfmResult>> {
     let nose = scheme.anchors.nose_tip[0];
     if let Some(short) = shapes.iter().position(|s| s.len() != scheme.len()) {
@@ -121,7 +124,12 @@ pub fn sfm_check(
         ));
     }
     let mut out = Vec::new();
-    for &condition in conditions {
+    for (index, &condition) in conditions.iter().enumerate() {
+        let phase = Phase::Sfm {
+            condition: index,
+            conditions: conditions.len(),
+        };
+        let mut report = PhaseReport::start(progress, phase, shapes.len());
         let mut rng = StdRng::seed_from_u64(seed);
         let (mut sum, mut worst) = (0.0, 0.0f64);
         for shape in shapes {
@@ -139,7 +147,9 @@ pub fn sfm_check(
             let e = rms_distance3(&moved, shape) / iod;
             sum += e;
             worst = worst.max(e);
+            report.step();
         }
+        report.finish();
         out.push(SfmResult {
             condition,
             shapes: shapes.len(),
@@ -188,6 +198,41 @@ mod tests {
         let want = (mean[36] - mean[45]).norm();
         let got = outer_eye_distance(mean, &a.eye_left, &a.eye_right);
         assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    }
+
+    #[test]
+    fn progress_counts_every_shape_of_every_condition_in_order() {
+        use crate::progress::{Phase, record::Recorder};
+        let mean = crate::model::default_model().unwrap().1.mean;
+        // Three faces: the mean, wider and taller.
+        let shapes: Vec<Vec<Vector3<f64>>> = [(1.0, 1.0), (1.1, 1.0), (1.0, 1.1)]
+            .iter()
+            .map(|&(sx, sy)| {
+                mean.iter()
+                    .map(|p| Vector3::new(sx * p.x, sy * p.y, p.z))
+                    .collect()
+            })
+            .collect();
+        let conditions = [(0.0, 0), (0.01, 3)].map(|(noise_iod, missing_per_view)| SfmCondition {
+            noise_iod,
+            missing_per_view,
+        });
+        let r = Recorder::default();
+        let rows = sfm_check(&shapes, &crate::shape::ibug68(), &conditions, 5, &r).unwrap();
+        assert_eq!(rows.len(), 2);
+        // Monotone within each phase, from 0 to the total, phases not resumed (`phases` checks).
+        let phases = r.phases();
+        assert_eq!(
+            phases,
+            [0, 1].map(|condition| Phase::Sfm {
+                condition,
+                conditions: 2
+            })
+        );
+        let all = r.0.lock().unwrap();
+        // Every shape is one step: 0, 1, 2, 3 in each condition.
+        assert_eq!(all.len(), 2 * (shapes.len() + 1));
+        assert!(all.iter().all(|p| p.total == shapes.len()));
     }
 
     #[test]
