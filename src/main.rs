@@ -34,6 +34,13 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Serve HTTP JSON and gRPC on one port (the long-running service).
+    // `--log-format` has no doc comment in facepose-service's `ServeArgs`; its help is given
+    // here until it has one there (`every_option_has_help` below needs one).
+    #[command(mut_arg("log_format", |a| if a.get_help().is_none() {
+        a.help("Log line format")
+    } else {
+        a
+    }))]
     Serve(facepose_service::config::ServeArgs),
     /// Estimate head pose from landmarks (JSON Lines or CSV) to JSON Lines.
     Estimate(cli::estimate::EstimateArgs),
@@ -74,5 +81,93 @@ fn main() -> ExitCode {
                 .map_or(2, |e| e.exit_status());
             ExitCode::from(status)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::CommandFactory;
+
+    /// The options of `cmd`'s subcommands (clap's own --help and --version aside) without a
+    /// help text, and their values without one where an option has a closed set (shown under
+    /// "Possible values"), as `command --option [value]`; and how many options were seen.
+    fn options_without_help(cmd: &clap::Command) -> (Vec<String>, usize) {
+        let mut missing = Vec::new();
+        let mut seen = 0;
+        for sub in cmd.get_subcommands() {
+            if sub.get_about().is_none() {
+                missing.push(sub.get_name().to_string());
+            }
+            for arg in sub.get_arguments() {
+                let id = arg.get_id().as_str();
+                if id == "help" || id == "version" {
+                    continue;
+                }
+                seen += 1;
+                let name = format!("{} --{}", sub.get_name(), arg.get_long().unwrap_or(id));
+                let help = arg.get_help().or(arg.get_long_help());
+                if help.is_none_or(|h| h.to_string().trim().is_empty()) {
+                    missing.push(name.clone());
+                }
+                // A flag's "true" and "false" are not shown.
+                let values = match arg.get_action().takes_values() {
+                    true => arg.get_possible_values(),
+                    false => Vec::new(),
+                };
+                for v in values {
+                    if !v.is_hide_set() && v.get_help().is_none() {
+                        missing.push(format!("{name} {}", v.get_name()));
+                    }
+                }
+            }
+        }
+        (missing, seen)
+    }
+
+    /// `facepose <command> --help` describes every option: a new flag without a doc comment
+    /// fails here.
+    #[test]
+    fn every_option_has_help() {
+        let cli = Cli::command();
+        cli.clone().debug_assert();
+        let (missing, seen) = options_without_help(&cli);
+        // Every subcommand's flags were walked: serve alone has more than 20.
+        assert!(seen > 60, "only {seen} options seen");
+        assert!(missing.is_empty(), "options without help: {missing:?}");
+    }
+
+    /// The walk finds an option without help, a value without help and a bare subcommand.
+    #[test]
+    fn options_without_help_are_found() {
+        #[derive(clap::ValueEnum, Clone)]
+        enum Colour {
+            /// Described.
+            Red,
+            Blue,
+        }
+        #[derive(clap::Parser)]
+        struct Bare {
+            #[command(subcommand)]
+            command: Sub,
+        }
+        #[derive(clap::Subcommand)]
+        enum Sub {
+            /// Described.
+            Run {
+                /// Described.
+                #[arg(long)]
+                good: bool,
+                #[arg(long)]
+                bare: bool,
+                /// Described.
+                #[arg(long, value_enum)]
+                colour: Option<Colour>,
+            },
+            Other,
+        }
+        let (missing, seen) = options_without_help(&Bare::command());
+        assert_eq!(seen, 3);
+        assert_eq!(missing, ["run --bare", "run --colour blue", "other"]);
     }
 }

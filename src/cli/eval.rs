@@ -35,6 +35,7 @@ pub enum Protocol {
 
 #[derive(Args)]
 pub struct EvalArgs {
+    /// Which evaluation to run.
     #[arg(long, value_enum, default_value_t = Protocol::Real)]
     protocol: Protocol,
     /// Faces with ground truth, JSON Lines in the AFLW2000-3D form (default: the dev split).

@@ -35,11 +35,16 @@ pub struct TrainArgs {
     /// The bundle directory to create (must not exist).
     #[arg(long)]
     out: PathBuf,
-    /// Use shapes [skip, skip + first) of the combined sets (default: all).
-    #[arg(long)]
+    /// Train on this many shapes only: shapes [skip, skip + N) of the combined --shapes files
+    /// in the order given (with --views: of the reconstructed subjects). Default: all shapes
+    /// after --skip. Recorded in the bundle's provenance.
+    #[arg(long, value_name = "N")]
     first: Option<usize>,
-    #[arg(long, default_value_t = 0)]
+    /// Leave out the first N shapes of the combined sets (e.g. to hold them out for testing,
+    /// as `eval --protocol paper` does with --train-shapes); see --first.
+    #[arg(long, value_name = "N", default_value_t = 0)]
     skip: usize,
+    /// The regression's pose grids.
     #[arg(long, value_enum, default_value_t = Grid::Wide)]
     grid: Grid,
     /// Sub-schemes to serve besides the model's own.
@@ -60,7 +65,10 @@ pub struct TrainArgs {
     /// Model name (default: the --out directory's name).
     #[arg(long)]
     name: Option<String>,
-    #[arg(long, default_value = "1")]
+    /// The version recorded in the bundle (its `version` field, any text). `serve` shows it for
+    /// a bundle deployed as `<models>/<name>/model.json`; under `<models>/<name>/versions/<N>/`
+    /// it must be N (and --name the folder's name) or the server refuses the bundle.
+    #[arg(long, value_name = "VERSION", default_value = "1")]
     model_version: String,
     /// Creation time to record (RFC 3339; default: now). Fix it to rebuild byte for byte.
     #[arg(long)]
