@@ -34,14 +34,7 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Serve HTTP JSON and gRPC on one port (the long-running service).
-    // `--log-format` has no doc comment in facepose-service's `ServeArgs`; its help is given
-    // here until it has one there (`every_option_has_help` below needs one).
-    #[command(mut_arg("log_format", |a| if a.get_help().is_none() {
-        a.help("Log line format")
-    } else {
-        a
-    }))]
-    Serve(facepose_service::config::ServeArgs),
+    Serve(Box<facepose_service::config::ServeArgs>),
     /// Estimate head pose from landmarks (JSON Lines or CSV) to JSON Lines.
     Estimate(cli::estimate::EstimateArgs),
     /// Score hidden-point removal against a dense mesh's true visibility and print the table.
@@ -59,7 +52,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Serve(a) => cli::serve::run(a),
+        Command::Serve(a) => cli::serve::run(*a),
         Command::Estimate(a) => cli::estimate::run(a),
         Command::Hpr(a) => cli::hpr::run(a),
         Command::Reconstruct(a) => cli::reconstruct::run(a),

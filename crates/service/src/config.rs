@@ -78,6 +78,7 @@ pub struct ServeArgs {
     /// Worker threads (default: the number of CPUs).
     #[arg(long, env = "FACEPOSE_WORKERS")]
     pub workers: Option<usize>,
+    /// Log line format: `text` for people, `json` (one object per line) for log collectors.
     #[arg(long, env = "FACEPOSE_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
     /// Log filter (tracing EnvFilter syntax), e.g. info, debug, facepose=debug,warn.
