@@ -47,6 +47,8 @@ enum Command {
     Train(cli::train::TrainArgs),
     /// Rebuild a 3D shape from several 2D views by structure from motion.
     Reconstruct(cli::reconstruct::ReconstructArgs),
+    /// GET a running server's /readyz (a container's HEALTHCHECK): exit 0 on a 2xx, else 1.
+    Healthcheck(cli::healthcheck::HealthcheckArgs),
 }
 
 fn main() -> ExitCode {
@@ -59,6 +61,7 @@ fn main() -> ExitCode {
         Command::Eval(a) => cli::eval::run(a),
         Command::EvalSfm(a) => cli::eval_sfm::run(a),
         Command::Train(a) => cli::train::run(a),
+        Command::Healthcheck(a) => cli::healthcheck::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 pub mod estimate;
 pub mod eval;
 pub mod eval_sfm;
+pub mod healthcheck;
 pub mod hpr;
 pub mod progress;
 pub mod reconstruct;

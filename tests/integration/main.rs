@@ -11,6 +11,7 @@ mod contour_style;
 mod conventions_aflw;
 mod detectors;
 mod eval_paper;
+mod healthcheck;
 mod hpr_mesh;
 mod model_bundle;
 mod opencv_frame;
