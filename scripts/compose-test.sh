@@ -3,7 +3,7 @@
 # balancer, under load and failures, and prints the figures (docs/DEPLOY.md, "What the failure
 # tests showed"):
 #
-#   scripts/compose-test.sh      # as root, or a user of the docker group; about 3 minutes
+#   scripts/compose-test.sh      # as root, or a user of the docker group; about 1 minute
 #
 # Phases, each bounded by `timeout` (the whole under 8 minutes):
 #  1. the images, made if missing (scripts/images.sh, scripts/lb-image.sh), a venv with requests
@@ -14,7 +14,8 @@
 #  4. gRPC calls from one channel spread over the three replicas (each replica's /metrics,
 #     scraped at its address on the compose network);
 #  5. a retrain uploaded through the balancer reaches every replica; its job answers from each;
-#  6. under steady HTTP and gRPC load: a rolling restart of every replica (0 failures expected);
+#  6. under steady HTTP and gRPC load: a rolling restart of every replica, stop (the drain's
+#     exit status 0) then start (0 failures expected);
 #  7. under load: `docker kill` of one replica (failures counted, the others carry on);
 #  8. under load: `docker network disconnect` of one replica (the time until HAProxy marks it
 #     DOWN, then reconnected and UP again).
@@ -180,20 +181,40 @@ say "phase 6: rolling restart under load ($http_rate HTTP + $grpc_rate gRPC req/
 load_start rolling
 health() { docker inspect -f '{{.State.Health.Status}}' "$(cid_of "$1")"; }
 t0=$(date +%s.%N)
+drain_ms() { # from "signal received" to "stopped" in the replica's last log lines (JSON)
+  docker logs --tail 20 "$1" 2>&1 | "$venv/bin/python" -c '
+import json, sys, datetime
+t = {}
+for line in sys.stdin:
+    try:
+        j = json.loads(line)
+    except ValueError:
+        continue
+    m = j.get("fields", {}).get("message")
+    if m in ("signal received", "stopped"):
+        t[m] = datetime.datetime.fromisoformat(j["timestamp"][:26].rstrip("Z"))
+print("%.1f" % ((t["stopped"] - t["signal received"]).total_seconds() * 1000)
+      if len(t) == 2 else "?")'
+}
 for r in "${replicas[@]}"; do
-  # docker-compose restart: SIGTERM (readiness 503, the listener closed, the drain), then a
-  # start; the next replica only once this one is healthy again (Docker's check of /readyz)
-  # and UP in HAProxy.
+  # docker-compose stop (SIGTERM: readiness 503, the listener closed, the drain; exit 0 when
+  # the drain completed, 3 when its cap cut it), then start; the next replica only once this
+  # one is healthy again (Docker's check of /readyz) and UP in HAProxy.
   t=$(date +%s.%N)
-  timeout 60 "${dc[@]}" restart -t 20 "$r" >/dev/null 2>&1
+  c=$(cid_of "$r")
+  timeout 60 "${dc[@]}" stop -t 20 "$r" >/dev/null 2>&1
   d=$(awk -v a="$t" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')
+  code=$(docker inspect -f '{{.State.ExitCode}}' "$c")
+  [ "$code" = 0 ] || fail "$r exited $code after docker-compose stop (0: a complete drain)"
+  dms=$(drain_ms "$c")
+  timeout 60 "${dc[@]}" start "$r" >/dev/null 2>&1
   deadline=$(($(date +%s) + 60))
   until [ "$(health "$r")" = healthy ]; do
     [ "$(date +%s)" -ge "$deadline" ] && { fail "$r not healthy within 60 s"; break; }
     sleep 0.2
   done
   wait_up 60 || fail "$r not UP again within 60 s"
-  say "  $r: docker-compose restart $d s; healthy and UP in HAProxy $(awk -v a="$t" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s after it began"
+  say "  $r: docker-compose stop $d s (exit $code, drain $dms ms), start; healthy and UP in HAProxy $(awk -v a="$t" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s after it began"
 done
 say "  rolling restart of 3 replicas: $(awk -v a="$t0" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s"
 load_stop rolling 0
