@@ -71,6 +71,16 @@ pub struct ServeArgs {
     /// same time is dropped with its streams. Quiet streams stay open. E.g. 20s.
     #[arg(long, env = "FACEPOSE_KEEPALIVE", default_value = "20s")]
     pub keepalive: String,
+    /// Connections older than this (±10%, so that they do not all go at once) are asked to
+    /// close: HTTP/2 gets a GOAWAY (clients open a new connection for their next call, so
+    /// long-lived gRPC channels reach pods added by a scale-out), HTTP/1 is closed after its
+    /// current request. E.g. 5m; default: never.
+    #[arg(long, env = "FACEPOSE_MAX_CONNECTION_AGE")]
+    pub max_connection_age: Option<String>,
+    /// With --max-connection-age: how long calls and streams in progress on an aged
+    /// connection may go on before it is closed under them, e.g. 30s.
+    #[arg(long, env = "FACEPOSE_MAX_CONNECTION_AGE_GRACE", default_value = "30s")]
+    pub max_connection_age_grace: String,
     /// On SIGTERM/SIGINT: how long in-flight requests may take to finish before the process
     /// exits anyway, e.g. 10s.
     #[arg(long, env = "FACEPOSE_DRAIN_TIMEOUT", default_value = "10s")]
@@ -235,6 +245,12 @@ impl ServeArgs {
             header_timeout: duration("header-timeout", &self.header_timeout)?,
             idle_timeout: duration("idle-timeout", &self.idle_timeout)?,
             keepalive: duration("keepalive", &self.keepalive)?,
+            max_age: self
+                .max_connection_age
+                .as_deref()
+                .map(|a| duration("max-connection-age", a))
+                .transpose()?,
+            age_grace: duration("max-connection-age-grace", &self.max_connection_age_grace)?,
         })
     }
 

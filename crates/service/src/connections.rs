@@ -55,6 +55,17 @@ pub struct ConnectionLimits {
     pub header_timeout: Duration,
     pub idle_timeout: Duration,
     pub keepalive: Duration,
+    /// Connections older than about this are asked to close (GOAWAY / close after the
+    /// request); `None`: never.
+    pub max_age: Option<Duration>,
+    /// How long an aged connection's calls may go on before it is closed under them.
+    pub age_grace: Duration,
+}
+
+/// A connection's own maximum age: `age` spread by ±10% with the client's port, so that the
+/// connections a load balancer opened together do not all close together.
+fn jittered(age: Duration, port: u16) -> Duration {
+    age.mul_f64(0.9 + 0.2 * f64::from(port % 101) / 100.0)
 }
 
 /// The answer to a connection over the cap, whatever it sent.
@@ -154,7 +165,7 @@ pub async fn serve(
     let mut shutdown = pin!(shutdown);
     let mut last_accept_error: Option<Instant> = None;
     loop {
-        let (tcp, _peer) = tokio::select! {
+        let (tcp, peer) = tokio::select! {
             biased;
             _ = &mut shutdown => break,
             accepted = listener.accept() => match accepted {
@@ -182,10 +193,14 @@ pub async fn serve(
             continue;
         };
         let (builder, router, stop) = (builder.clone(), router.clone(), stop_rx.clone());
+        let ageing = limits.max_age.map(|age| Ageing {
+            age: jittered(age, peer.port()),
+            grace: limits.age_grace,
+        });
         connections.spawn(async move {
             let mut stop = stop;
             if first_byte(&tcp, limits.header_timeout, &mut stop).await {
-                serve_connection(&builder, tcp, router, limits.idle_timeout, stop).await;
+                serve_connection(&builder, tcp, router, limits.idle_timeout, ageing, stop).await;
             }
             drop(permit);
         });
@@ -241,11 +256,19 @@ async fn first_byte(tcp: &TcpStream, within: Duration, stop: &mut watch::Receive
     }
 }
 
+/// A connection's maximum age and the grace its calls get once it is reached.
+#[derive(Debug, Clone, Copy)]
+struct Ageing {
+    age: Duration,
+    grace: Duration,
+}
+
 async fn serve_connection(
     builder: &auto::Builder<TokioExecutor>,
     tcp: TcpStream,
     router: Router,
     idle_timeout: Duration,
+    ageing: Option<Ageing>,
     mut stop: watch::Receiver<bool>,
 ) {
     let start = Instant::now();
@@ -261,8 +284,17 @@ async fn serve_connection(
     });
     let mut conn = pin!(builder.serve_connection_with_upgrades(TokioIo::new(tcp), service));
     let mut closing = false;
-    let mut tick = tokio::time::interval(idle_timeout.min(Duration::from_secs(1)));
+    // Set once the connection is past its age: then it is closed, whatever runs on it.
+    let mut cut_at: Option<tokio::time::Instant> = None;
+    let period = ageing.map_or(idle_timeout, |a| a.age.min(idle_timeout));
+    let mut tick = tokio::time::interval(period.min(Duration::from_secs(1)));
     loop {
+        let cut = async {
+            match cut_at {
+                Some(t) => tokio::time::sleep_until(t).await,
+                None => std::future::pending().await,
+            }
+        };
         tokio::select! {
             result = conn.as_mut() => {
                 if let Err(e) = result {
@@ -274,7 +306,17 @@ async fn serve_connection(
                 closing = true;
                 conn.as_mut().graceful_shutdown();
             }
+            _ = cut => {
+                tracing::debug!("connection closed: past its maximum age and grace");
+                return;
+            }
             _ = tick.tick(), if !closing => {
+                if let Some(a) = ageing.filter(|a| start.elapsed() >= a.age) {
+                    closing = true;
+                    cut_at = Some(tokio::time::Instant::now() + a.grace);
+                    conn.as_mut().graceful_shutdown();
+                    continue;
+                }
                 let idle = activity.in_progress.load(Ordering::Acquire) == 0;
                 let since = Duration::from_millis(activity.idle_since_ms.load(Ordering::Acquire));
                 if idle && start.elapsed().saturating_sub(since) >= idle_timeout {
@@ -289,6 +331,18 @@ async fn serve_connection(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn connection_ages_spread_by_ten_percent() {
+        let age = Duration::from_secs(300);
+        let ages: Vec<Duration> = (40000..40101).map(|p| jittered(age, p)).collect();
+        assert!(
+            ages.iter()
+                .all(|a| *a >= age.mul_f64(0.9) && *a <= age.mul_f64(1.1))
+        );
+        let (lo, hi) = (ages.iter().min().unwrap(), ages.iter().max().unwrap());
+        assert!(*hi - *lo >= age.mul_f64(0.19), "{lo:?}..{hi:?}");
+    }
 
     #[test]
     fn the_refusal_is_a_complete_http_answer() {

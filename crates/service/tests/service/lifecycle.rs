@@ -291,3 +291,100 @@ async fn connections_past_the_cap_get_a_503_and_a_freed_slot_is_reused() {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// An HTTP/1.1 keep-alive connection that has answered one request: whether the server
+/// closes it within `within`.
+fn closed_within(addr: std::net::SocketAddr, within: Duration) -> bool {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(addr).unwrap();
+    s.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .unwrap();
+    s.set_read_timeout(Some(Duration::from_millis(100)))
+        .unwrap();
+    let t = Instant::now();
+    let mut buf = [0u8; 4096];
+    while t.elapsed() < within {
+        match s.read(&mut buf) {
+            Ok(0) => return true,
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+            Err(_) => return true,
+        }
+    }
+    false
+}
+
+#[test]
+fn connections_past_their_maximum_age_are_closed() {
+    // Without the flag a kept-alive connection stays (the header timeout is 30 s).
+    let server = Server::start(&[]);
+    assert!(!closed_within(server.addr, Duration::from_millis(1500)));
+    // With it, it goes after about its age (±10%), checked once a tick.
+    let server = Server::start(&["--max-connection-age", "500ms"]);
+    let t = Instant::now();
+    assert!(closed_within(server.addr, Duration::from_secs(3)));
+    assert!(
+        t.elapsed() >= Duration::from_millis(440),
+        "{:?}",
+        t.elapsed()
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn grpc_calls_go_on_across_aged_connections_and_streams_get_their_grace() {
+    let server = Server::start(&[
+        "--max-connection-age",
+        "400ms",
+        "--max-connection-age-grace",
+        "600ms",
+    ]);
+    // Unary calls on one channel for 2 s: its connection is asked to go several times (GOAWAY),
+    // and the channel opens a new one each time; no call fails.
+    let mut g = server.grpc().await;
+    let t = Instant::now();
+    let mut calls = 0;
+    while t.elapsed() < Duration::from_secs(2) {
+        g.estimate(proto::EstimateRequest {
+            face: Some(proto_face(&face68(10.0, 0.0, 0.0), "", "fit", "")),
+            model: String::new(),
+        })
+        .await
+        .unwrap_or_else(|e| panic!("call {calls} failed: {e:?}"));
+        calls += 1;
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(calls > 20, "{calls}");
+    // A stream left open on an aged connection is cut after the grace: the tracker's client
+    // reopens it (on a new pod after a scale-out).
+    let mut g = server.grpc().await;
+    let (tx, mut results) = facepose_testkit::open_stream(&mut g, 4).await;
+    let t = Instant::now();
+    let mut frames = 0u64;
+    let ended = loop {
+        let frame = proto::Frame {
+            frame_id: frames,
+            faces: vec![proto_face(&face68(0.0, 0.0, 0.0), "", "fit", "t")],
+            ..Default::default()
+        };
+        if tx.send(frame).await.is_err() {
+            break t.elapsed();
+        }
+        match tokio::time::timeout(Duration::from_secs(3), results.message()).await {
+            Ok(Ok(Some(_))) => frames += 1,
+            Ok(_) => break t.elapsed(),
+            Err(_) => panic!("no answer within 3 s"),
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(5),
+            "the stream was never cut"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    // Age 360-440 ms, then 600 ms of grace; ticks of 400 ms.
+    assert!(
+        ended >= Duration::from_millis(900),
+        "cut after {ended:?}, {frames} frames"
+    );
+    assert!(ended <= Duration::from_millis(2500), "cut after {ended:?}");
+}
