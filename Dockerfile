@@ -41,7 +41,7 @@ RUN mkdir -p src crates/core/benches crates/core/examples crates/service/benches
  && for c in core files app service testkit; do mkdir -p crates/$c/src && touch crates/$c/src/lib.rs; done \
  && mkdir -p crates/protogen/src && echo 'fn main() {}' > crates/protogen/src/main.rs \
  && echo 'fn main() {}' > src/main.rs \
- && for b in hpr estimate train; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \
+ && for b in hpr estimate train real_faces; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \
  && echo 'fn main() {}' > crates/core/examples/convention.rs \
  && echo 'fn main() {}' > crates/service/benches/service.rs \
  && for e in instructions loadgen; do echo 'fn main() {}' > crates/service/examples/$e.rs; done \

@@ -10,6 +10,7 @@ mod cli_estimate;
 mod contour_style;
 mod conventions_aflw;
 mod detectors;
+mod dockerfile_stubs;
 mod eval_paper;
 mod healthcheck;
 mod hpr_mesh;
