@@ -91,6 +91,9 @@ tokdir=$(mktemp -d)
 (umask 022 && openssl rand -hex 32 >"$tokdir/token")
 export FACEPOSE_ADMIN_TOKEN_FILE=$tokdir/token FACEPOSE_PUBLISH=127.0.0.1:$lb_port \
   FACEPOSE_LB_STATS=127.0.0.1:$stats_port
+# Connection ageing short enough to happen several times during the test (phase 9).
+export FACEPOSE_MAX_CONNECTION_AGE=${FACEPOSE_MAX_CONNECTION_AGE:-8s} \
+  FACEPOSE_MAX_CONNECTION_AGE_GRACE=${FACEPOSE_MAX_CONNECTION_AGE_GRACE:-4s}
 dc=(docker-compose -p "$project" -f "$compose_file")
 t=$(date +%s.%N)
 timeout 120 "${dc[@]}" up -d 2>&1 | grep -v '\.\.\. *$' | sed 's/^/  /'
@@ -245,6 +248,23 @@ u=$(timeout 40 "${py[@]}" watch --server facepose-3 --state UP --timeout 30 -- d
 say "  reconnected: $u"
 echo "$u" | jq -e .ok >/dev/null || fail "facepose-3 not UP within 30 s of its reconnection"
 load_stop netcut 8
+
+# ---- 9. connection ageing under load: the replicas ask HAProxy's connections to close after
+# about FACEPOSE_MAX_CONNECTION_AGE (GOAWAY); HAProxy opens new ones; no request may fail.
+lb_connects() { # HAProxy's connection attempts to the replicas so far (the "connect" column)
+  curl -s --max-time 2 "http://127.0.0.1:$stats_port/stats;csv" | awk -F, '
+    NR == 1 { for (i = 1; i <= NF; i++) if ($i == "connect") c = i; next }
+    $1 == "replicas" && $2 == "BACKEND" { print $c }'
+}
+say "phase 9: connection ageing under load (age $FACEPOSE_MAX_CONNECTION_AGE, grace $FACEPOSE_MAX_CONNECTION_AGE_GRACE)"
+c_before=$(lb_connects)
+load_start ageing
+sleep 20
+load_stop ageing 0 0
+c_after=$(lb_connects)
+say "  HAProxy's connections to the replicas: $c_before before, $c_after after 23 s of load"
+[ -n "$c_before" ] && [ -n "$c_after" ] && [ "$c_after" -gt "$c_before" ] ||
+  fail "no new connection to the replicas: the aged ones were not closed"
 
 say "the balancer's log (server state changes, requests not ended normally; last 40 lines):"
 "${dc[@]}" logs --no-color lb 2>/dev/null | grep -v '\[WARNING\]' | sed 's/^lb_1 *| /  /' | tail -40 || true
