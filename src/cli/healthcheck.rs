@@ -31,6 +31,7 @@ pub struct HealthcheckArgs {
     pub timeout: Duration,
 }
 
+/// Checks the URL once: `Ok` on a 2xx, else a [`super::Finished`] with status 1 (unhealthy).
 pub fn run(a: HealthcheckArgs) -> Result<(), CliError> {
     let url = match a.url {
         Some(u) => u,
@@ -120,7 +121,9 @@ fn parse_url(url: &str) -> Result<Target, String> {
 
 /// Runs the GET; `Ok` holds the status line of a 2xx answer, `Err` the reason of a failure.
 fn check(url: &str, timeout: Duration) -> Result<String, String> {
-    let deadline = Instant::now() + timeout;
+    let deadline = Instant::now()
+        .checked_add(timeout)
+        .ok_or_else(|| format!("--timeout {timeout:?} is too long"))?;
     let left = || {
         deadline
             .checked_duration_since(Instant::now())

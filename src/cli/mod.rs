@@ -17,7 +17,9 @@ pub type CliError = Box<dyn std::error::Error + Send + Sync>;
 /// or no faces estimated): the message goes to standard error, `status` is the exit status.
 #[derive(Debug)]
 pub struct Finished {
+    /// The process's exit status.
     pub status: u8,
+    /// What standard error says about the outcome.
     pub message: String,
 }
 

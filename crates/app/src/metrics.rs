@@ -165,6 +165,11 @@ impl Metrics {
         self.with(|| gauge!("facepose_streams_active").decrement(1.0));
     }
 
+    /// A connection asked to close for its age (`--max-connection-age`).
+    pub fn connection_aged(&self) {
+        self.with(|| counter!("facepose_connections_aged_total").increment(1));
+    }
+
     pub fn ready(&self, on: bool) {
         self.with(|| gauge!("facepose_ready").set(if on { 1.0 } else { 0.0 }));
     }
@@ -237,6 +242,10 @@ fn describe() {
         "Faces that could not be estimated, by transport and error code"
     );
     describe_gauge!("facepose_streams_active", "Open EstimateStream streams");
+    describe_counter!(
+        "facepose_connections_aged_total",
+        "Connections asked to close for their age (--max-connection-age)"
+    );
     describe_gauge!("facepose_ready", "1 when serving, 0 when draining");
     describe_counter!(
         "facepose_model_swaps_total",

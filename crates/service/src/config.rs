@@ -22,6 +22,9 @@ pub enum LogFormat {
     Json,
 }
 
+/// The longest connection duration a flag may set (timeouts, ages).
+const MAX_CONNECTION_DURATION: Duration = Duration::from_secs(365 * 24 * 3600);
+
 /// The flags of `facepose serve`.
 #[derive(Debug, Clone, Args)]
 pub struct ServeArgs {
@@ -222,6 +225,10 @@ impl ServeArgs {
             let d = parse_duration(text).map_err(|r| bad(flag, r))?;
             if d < Duration::from_millis(100) {
                 return Err(bad(flag, "must be at least 100ms"));
+            }
+            // Far past any use, and far from what a timer's arithmetic can overflow.
+            if d > MAX_CONNECTION_DURATION {
+                return Err(bad(flag, "must be at most 365 days"));
             }
             Ok(d)
         };
@@ -499,6 +506,14 @@ mod tests {
                 "--max-concurrency",
             ),
             (&["--max-streams", "0"][..], "--max-streams"),
+            (
+                &["--max-connection-age", "1e19s"][..],
+                "--max-connection-age",
+            ),
+            (
+                &["--max-connection-age-grace", "50ms"][..],
+                "--max-connection-age-grace",
+            ),
             (
                 &["--cors-origins", "https://app.example.com/"][..],
                 "--cors-origins",

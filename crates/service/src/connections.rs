@@ -21,6 +21,10 @@
 //! - **Keep-alive pings** (`--keepalive`) on HTTP/2: a peer that does not answer a ping within
 //!   the same period is gone, and its connection (and streams) are closed; streams that should
 //!   live stay open however quiet they are.
+//! - **A maximum connection age** (`--max-connection-age`, off by default; ±10% by the client's
+//!   port): an older connection is asked to close (GOAWAY, or after the current HTTP/1
+//!   request), and after `--max-connection-age-grace` it is closed under whatever still runs,
+//!   so that long-lived gRPC channels spread again over replicas added since.
 //!
 //! On shutdown the loop stops accepting and asks every connection to finish gracefully (HTTP/1
 //! after its current request, HTTP/2 by GOAWAY), then waits for them all, as `axum::serve`'s
@@ -139,10 +143,13 @@ impl http_body::Body for TrackedBody {
 }
 
 /// Serves `router` on `listener` until `shutdown` resolves, then drains (module doc).
+/// Serves `router` on `listener` within `limits` until `shutdown`, then drains; `aged` is
+/// called for each connection asked to close for its age.
 pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: ConnectionLimits,
+    aged: impl Fn() + Clone + Send + Sync + 'static,
     shutdown: impl Future<Output = ()>,
 ) {
     let mut builder = auto::Builder::new(TokioExecutor::new());
@@ -193,13 +200,16 @@ pub async fn serve(
             continue;
         };
         let (builder, router, stop) = (builder.clone(), router.clone(), stop_rx.clone());
-        let ageing = limits.max_age.map(|age| Ageing {
-            age: jittered(age, peer.port()),
-            grace: limits.age_grace,
-        });
+        let age = limits.max_age.map(|age| jittered(age, peer.port()));
+        let aged = aged.clone();
         connections.spawn(async move {
             let mut stop = stop;
             if first_byte(&tcp, limits.header_timeout, &mut stop).await {
+                let ageing = age.map(|age| Ageing {
+                    age,
+                    grace: limits.age_grace,
+                    aged: &aged,
+                });
                 serve_connection(&builder, tcp, router, limits.idle_timeout, ageing, stop).await;
             }
             drop(permit);
@@ -256,11 +266,13 @@ async fn first_byte(tcp: &TcpStream, within: Duration, stop: &mut watch::Receive
     }
 }
 
-/// A connection's maximum age and the grace its calls get once it is reached.
-#[derive(Debug, Clone, Copy)]
-struct Ageing {
+/// A connection's maximum age, the grace its calls get once it is reached, and what to call
+/// then (a metric).
+#[derive(Clone, Copy)]
+struct Ageing<'a> {
     age: Duration,
     grace: Duration,
+    aged: &'a (dyn Fn() + Send + Sync),
 }
 
 async fn serve_connection(
@@ -268,7 +280,7 @@ async fn serve_connection(
     tcp: TcpStream,
     router: Router,
     idle_timeout: Duration,
-    ageing: Option<Ageing>,
+    ageing: Option<Ageing<'_>>,
     mut stop: watch::Receiver<bool>,
 ) {
     let start = Instant::now();
@@ -312,6 +324,7 @@ async fn serve_connection(
             }
             _ = tick.tick(), if !closing => {
                 if let Some(a) = ageing.filter(|a| start.elapsed() >= a.age) {
+                    (a.aged)();
                     closing = true;
                     cut_at = Some(tokio::time::Instant::now() + a.grace);
                     conn.as_mut().graceful_shutdown();

@@ -219,7 +219,11 @@ async fn serve_app(
         "listening (HTTP and gRPC)"
     );
     let drain_app = app.clone();
-    let server = crate::connections::serve(listener, router, cfg.connections, async move {
+    let aged = {
+        let metrics = app.metrics.clone();
+        move || metrics.connection_aged()
+    };
+    let server = crate::connections::serve(listener, router, cfg.connections, aged, async move {
         shutdown.await;
         tracing::info!("draining: not ready, no new connections, streams told to end");
         drain_app.lifecycle.begin_drain();

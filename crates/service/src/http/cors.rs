@@ -11,9 +11,9 @@
 //!
 //! A preflight (`OPTIONS` with `Origin` and `Access-Control-Request-Method`) on a route is
 //! answered here, 200, before the limits, the handlers and their admin check; one for an
-//! operation that is not opened (or not there) gets the same 200 without
-//! `access-control-allow-origin`, so the browser refuses the call. Any other `OPTIONS` is the
-//! 405 it always was.
+//! operation that is not opened (or a method the route lacks) gets the same 200 without
+//! `access-control-allow-origin`, so the browser refuses the call. A path with no route gets
+//! the fallback's 404. Any other `OPTIONS` is the 405 it always was.
 
 use std::collections::HashMap;
 use std::sync::Arc;
