@@ -260,18 +260,34 @@ lb_connects() { # HAProxy's connection attempts to the replicas so far (the "con
     $1 == "replicas" && $2 == "BACKEND" { print $c }'
 }
 say "phase 9: connection ageing under load (age $FACEPOSE_MAX_CONNECTION_AGE, grace $FACEPOSE_MAX_CONNECTION_AGE_GRACE)"
-# Counted once the load is steady (load_start waits 3 s), so that the connections HAProxy opens
-# for a new load are not taken for replacements: under steady load it keeps its connections
-# unless the replicas close them. 20 s at an age of 8 s (±10%): each replica's connections go
-# at least twice.
+aged_total() { # facepose_connections_aged_total of each replica, scraped at its own address
+  # (looked up again: a replica reconnected in phase 8 may have another)
+  local r ip out=
+  for r in "${replicas[@]}"; do
+    ip=$(docker inspect -f "{{(index .NetworkSettings.Networks \"$net\").IPAddress}}" "$(cid_of "$r")")
+    out="$out $r=$(curl -s --max-time 2 "http://$ip:8080/metrics" |
+      awk '$1 == "facepose_connections_aged_total" { n = $2 } END { print n + 0 }')"
+  done
+  echo "${out# }"
+}
+# Counted from once the load is steady (load_start waits 3 s). 20 s at an age of 8 s (±10%):
+# every replica asks each connection HAProxy keeps to it to close at least twice; HAProxy's
+# own count of the connections it opened shows them replaced.
 load_start ageing
+a_before=$(aged_total)
 c_before=$(lb_connects)
 sleep 20
+a_after=$(aged_total)
 c_after=$(lb_connects)
 load_stop ageing 0 0
-say "  HAProxy's connections to the replicas: $c_before when the load was steady, $c_after 20 s later"
-[ -n "$c_before" ] && [ -n "$c_after" ] && [ $((c_after - c_before)) -ge 6 ] ||
-  fail "fewer than 6 new connections to the replicas in 20 s: the aged ones were not closed"
+say "  connections aged by each replica (facepose_connections_aged_total): $a_before when the load was steady, $a_after 20 s later"
+say "  HAProxy's connections to the replicas: $c_before, then $c_after"
+for r in "${replicas[@]}"; do
+  b=$(echo "$a_before" | tr ' ' '\n' | sed -n "s/^$r=//p")
+  a=$(echo "$a_after" | tr ' ' '\n' | sed -n "s/^$r=//p")
+  [ -n "$a" ] && [ -n "$b" ] && [ "$((a - b))" -ge 2 ] ||
+    fail "$r aged ${b:-?} -> ${a:-?} connections in 20 s (at least 2 expected at an age of $FACEPOSE_MAX_CONNECTION_AGE)"
+done
 
 say "the balancer's log (server state changes, requests not ended normally; last 40 lines):"
 "${dc[@]}" logs --no-color lb 2>/dev/null | grep -v '\[WARNING\]' | sed 's/^lb_1 *| /  /' | tail -40 || true
