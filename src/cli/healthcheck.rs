@@ -208,9 +208,15 @@ fn judge(answer: &[u8]) -> Result<String, String> {
     }
     let text = String::from_utf8_lossy(answer);
     let status_line = text.lines().next().unwrap_or("").trim();
+    // `HTTP/1.x SP DDD [SP reason]` (RFC 9112 §4): three digits, nothing glued to them.
     let code = status_line
         .strip_prefix("HTTP/1.")
-        .and_then(|r| r.get(2..5))
+        .filter(|r| r.as_bytes().get(1) == Some(&b' '))
+        .and_then(|r| {
+            r.get(2..5)
+                .filter(|_| matches!(r.as_bytes().get(5), None | Some(b' ')))
+        })
+        .filter(|c| c.bytes().all(|b| b.is_ascii_digit()))
         .and_then(|c| c.parse::<u16>().ok())
         .ok_or_else(|| format!("not an HTTP/1 answer: {:?}", clip(status_line, 80)))?;
     if (200..300).contains(&code) {
@@ -310,5 +316,18 @@ mod tests {
                 .contains("not an HTTP/1")
         );
         assert!(judge(b"").unwrap_err().contains("closed"));
+        assert!(
+            judge(b"HTTP/1.1 200\r\n\r\n").is_ok(),
+            "the reason may be empty"
+        );
+        for bad in [
+            &b"HTTP/1.1 2000 OK\r\n\r\n"[..],
+            b"HTTP/1.1X200 OK\r\n\r\n",
+            b"HTTP/1.1 +20 OK\r\n\r\n",
+            b"HTTP/1.1 20 OK\r\n\r\n",
+        ] {
+            let e = judge(bad).unwrap_err();
+            assert!(e.contains("not an HTTP/1"), "{e}");
+        }
     }
 }
