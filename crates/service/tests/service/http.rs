@@ -831,6 +831,14 @@ async fn a_batch_outside_its_schema_is_refused_whole() {
     );
 }
 
+/// The admin routes (path, method), one per kind of admin operation.
+const ADMIN_ROUTES: [(&str, &str); 4] = [
+    ("/v1/models", "POST"),
+    ("/v1/models/default/versions/1:activate", "POST"),
+    ("/v1/models/default/versions/1", "DELETE"),
+    ("/v1/models/jobs/j-nope:cancel", "POST"),
+];
+
 /// A browser's preflight, as Chromium sends it before a `fetch()` of another origin.
 async fn preflight(
     c: &reqwest::Client,
@@ -978,12 +986,7 @@ async fn cors_opens_every_v1_route_to_listed_origins_only() {
 
     // Admin routes: to listed origins, with authorization; the preflight never meets the
     // admin check (no token sent) nor the 405 of a route without OPTIONS.
-    for (path, method) in [
-        ("/v1/models", "POST"),
-        ("/v1/models/default/versions/1:activate", "POST"),
-        ("/v1/models/default/versions/1", "DELETE"),
-        ("/v1/models/jobs/j-nope:cancel", "POST"),
-    ] {
+    for (path, method) in ADMIN_ROUTES {
         let r = preflight(
             &c,
             &server.url(path),
@@ -1079,12 +1082,7 @@ async fn cors_any_origin_opens_the_routes_without_the_admin_token() {
     assert_eq!(header(&r, "access-control-allow-origin"), Some("*"));
 
     // The admin routes are not opened to "*", preflight or call, token or not.
-    for (path, method) in [
-        ("/v1/models", "POST"),
-        ("/v1/models/default/versions/1:activate", "POST"),
-        ("/v1/models/default/versions/1", "DELETE"),
-        ("/v1/models/jobs/j-nope:cancel", "POST"),
-    ] {
+    for (path, method) in ADMIN_ROUTES {
         let r = preflight(
             &c,
             &server.url(path),
