@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use clap::{Args, ValueEnum};
 use facepose_core::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
+use facepose_core::eval::mesh::{MeshOptions, mesh_markdown, mesh_protocol};
 use facepose_core::eval::paper::{
     PaperOptions, default_entries, paper_markdown, paper_protocol, robustness_markdown,
     train_paper_model,
@@ -29,7 +30,9 @@ pub enum Protocol {
     Paper,
     /// Real faces with ground-truth pose.
     Real,
-    /// Both.
+    /// MediaPipe input: the model's face mesh at known poses with landmark noise.
+    Mediapipe,
+    /// All three.
     All,
 }
 
@@ -131,6 +134,21 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
         ));
         pngs.push((STYLE_PNG, large_yaw_landmarks_png(&faces)?));
         json.insert("real".into(), serde_json::to_value(&rows)?);
+    }
+    if matches!(a.protocol, Protocol::Mediapipe | Protocol::All) {
+        if !report.is_empty() {
+            report.push('\n');
+        }
+        let (_, model) = super::load_model(a.model.as_deref())?;
+        progress.stage("mediapipe: the face mesh at known poses");
+        let opts = MeshOptions {
+            seed: a.seed,
+            ..MeshOptions::default()
+        };
+        let rows = mesh_protocol(&model, &methods, &opts)?;
+        report.push_str("## MediaPipe landmarks, synthetic\n\n");
+        report.push_str(&mesh_markdown(&rows, &opts));
+        json.insert("mediapipe".into(), serde_json::to_value(&rows)?);
     }
     print!("{report}");
     if let Some(out) = &a.out {
@@ -395,6 +413,26 @@ fn run_real(
         ),
         None => String::new(),
     };
+    let misfit = format!(
+        "### Does it look like a face?\n\n\
+         The misfit of every face (all {} of them): the share of the landmarks' spread that the best fit of the face leaves \
+         unexplained (for the paper's methods, the rigid fit's). An answer above {} carries a warning, above {} it is refused as \
+         not a face in its scheme; MediaPipe's first 68 points sent as ibug68 give 0.93 (tests/integration/mediapipe.rs).\n\n{}\n",
+        faces.len(),
+        facepose_core::pose::MISFIT_WARN,
+        facepose_core::pose::MISFIT_REFUSE,
+        aflw::misfit_markdown(&aflw::misfits(
+            &model,
+            faces,
+            &Source::ALL,
+            &[
+                Method::Auto,
+                Method::Fit,
+                Method::Regression,
+                Method::Geometry
+            ],
+        ))
+    );
     let text = format!(
         "## Real faces: {}\n\nModel `{}` version {} ({}; geometric ratios L_f = {:.3}, l_n = {:.3}, the paper's 0.45 and 0.50). \
          Faces with every |angle| <= 99° (`within_99`); errors in degrees; \
@@ -412,7 +450,7 @@ fn run_real(
         model.geometry.ln,
         aflw_markdown(&rows),
         timing.join("; "),
-        diagnostic + &calibration + &gimbal
+        diagnostic + &calibration + &gimbal + &misfit
     );
     Ok((text, rows))
 }

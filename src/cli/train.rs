@@ -6,10 +6,14 @@ use std::time::Instant;
 
 use clap::{Args, ValueEnum};
 use facepose_core::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
-use facepose_core::model::{BasisSource, RegressionParams, TrainOptions, train_from_population};
+use facepose_core::model::{
+    BasisSource, MeshSource, RegressionParams, TrainOptions, train_from_population,
+};
 use facepose_core::sfm::{SfmOptions, reconstruct};
 use facepose_core::shape::{Scheme, Shape2};
-use facepose_files::data::{load_morphable_model, load_multi_view, load_population};
+use facepose_files::data::{
+    load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
+};
 use facepose_files::store::write_bundle_dir;
 use nalgebra::Vector3;
 
@@ -62,6 +66,11 @@ pub struct TrainArgs {
     /// Widen the morphable model's expression prior by this factor.
     #[arg(long, default_value_t = 1.0, requires = "morphable")]
     expression_spread: f64,
+    /// MediaPipe's canonical face mesh (../shared/data/mediapipe/canonical_face_468.json): the
+    /// model then serves `mediapipe468` and `mediapipe478`, the mesh aligned to its mean by the
+    /// file's ibug68 correspondence (an ibug68 model only).
+    #[arg(long, value_name = "FILE")]
+    mesh: Option<PathBuf>,
     /// Model name (default: the --out directory's name).
     #[arg(long)]
     name: Option<String>,
@@ -209,8 +218,31 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         },
         None => BasisSource::Pca(a.components),
     };
-    let model = train_from_population(&scheme, shapes, basis, &opts)?;
+    let mut model = train_from_population(&scheme, shapes, basis, &opts)?;
     progress.stage("trained");
+    if let Some(path) = &a.mesh {
+        if scheme.name != "ibug68" {
+            return Err(format!(
+                "--mesh needs an ibug68 model (the mesh's correspondence is to ibug68), this one is {}",
+                scheme.name
+            )
+            .into());
+        }
+        let bytes =
+            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        sources.push(SourceFile {
+            path: path.display().to_string(),
+            sha256: sha256_hex(&bytes),
+            shapes: 0,
+        });
+        let mesh = load_canonical_mesh(path)?;
+        model.attach_mesh(&MeshSource {
+            vertices: mesh.vertices,
+            triangles: mesh.triangles,
+            to_model: mesh.ibug68,
+        })?;
+        progress.stage("aligned the face mesh and computed its visibility");
+    }
     let created = match a.created {
         Some(c) => c,
         None => time::OffsetDateTime::now_utc()
@@ -237,7 +269,12 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
                 ),
                 None => format!("up to {} principal components of the shapes", a.components),
             }
-        ),
+        ) + if a.mesh.is_some() {
+            "; face mesh: MediaPipe's canonical face mesh (Apache-2.0), aligned to the mean by \
+             its ibug68 correspondence (MIT, PeizhiYan/Mediapipe_2_Dlib_Landmarks)"
+        } else {
+            ""
+        },
     };
     let bundle = Bundle::from_model(&model, &opts, &name, &a.model_version, &created, provenance)?;
     write_bundle_dir(&a.out, &bundle)?;

@@ -14,6 +14,7 @@ mod dockerfile_stubs;
 mod eval_paper;
 mod healthcheck;
 mod hpr_mesh;
+mod mediapipe;
 mod model_bundle;
 mod opencv_frame;
 mod service_process;

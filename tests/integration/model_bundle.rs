@@ -93,13 +93,23 @@ fn the_default_model_rebuilds_byte_for_byte() {
 }
 
 /// The default bundle as schema 1 wrote it: no stored visibility (whose loading runs HPR), and
-/// without the `dlib5` subset, which came later.
+/// without the `dlib5` subset and MediaPipe's face mesh, which came later (with the mesh's
+/// source and command-line option taken out of the provenance).
 fn as_schema_1() -> Bundle {
     let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
     b.schema_version = 1;
     b.visibility = None;
     b.training.subsets.retain(|s| s != "dlib5");
     b.regressions.retain(|r| r.scheme != "dlib5");
+    b.mesh = None;
+    let p = &mut b.provenance;
+    p.sources
+        .retain(|s| !s.path.ends_with("canonical_face_468.json"));
+    p.command = p.command.replace(
+        " --mesh ../shared/data/mediapipe/canonical_face_468.json",
+        "",
+    );
+    p.notes = p.notes.split("; face mesh:").next().unwrap().to_string();
     b.checksum = b.compute_checksum().unwrap();
     b
 }

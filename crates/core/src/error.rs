@@ -38,6 +38,22 @@ pub enum Error {
     #[error("invalid landmark scheme {scheme:?}: {reason}")]
     InvalidScheme { scheme: String, reason: String },
 
+    /// The landmarks do not look like a face in their scheme: the best fit of the face leaves
+    /// most of their spread unexplained (a wrong scheme, a wrong point order, or not a face).
+    #[error(
+        "the landmarks do not look like a face in scheme {scheme}: the best fit of the face \
+         leaves {pct:.0}% of their spread unexplained (real faces stay below 25%; the limit is \
+         {limit:.0}%); check the scheme and the order of the points (MediaPipe's are \
+         mediapipe468 or mediapipe478, not ibug68), and that x, y are the pixels of one face",
+        pct = misfit * 100.0,
+        limit = limit * 100.0
+    )]
+    NotAFace {
+        scheme: String,
+        misfit: f64,
+        limit: f64,
+    },
+
     /// An iterative solver failed to converge or a decomposition failed.
     #[error("numerical failure: {0}")]
     Numerical(String),

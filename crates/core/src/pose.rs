@@ -15,7 +15,7 @@ use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
 use crate::estimate::perspective::{Intrinsics, refine_perspective};
 use crate::geometry::EulerAngles;
 use crate::geometry::image_to_plane;
-use crate::model::{PoseModel, Subset, SubsetMap};
+use crate::model::{FaceMesh, MeshScheme, PoseModel, Subset, SubsetMap};
 use crate::shape::Shape2;
 
 /// The estimators.
@@ -131,11 +131,71 @@ pub struct Estimate {
     /// RMS reprojection error of the mean shape at the estimate over the present points,
     /// divided by the projected inter-ocular distance (eye centres): unitless.
     pub residual: f64,
+    /// The share of the landmarks' spread that the mean shape at the estimate leaves
+    /// unexplained: `sqrt(SSE / Σ|y - ȳ|²)` at the best scale and translation (0 a perfect fit,
+    /// 1 nothing explained). Scale-free and, unlike the residual, not inflated where the eyes
+    /// close up in profile: what says whether the landmarks look like a face in their scheme.
+    ///
+    /// For the paper's methods, whose pose can be poor where the landmarks are fine, it is the
+    /// rigid fit's.
+    pub misfit: f64,
+    /// What the caller should know about this answer.
+    pub warnings: Vec<Warning>,
     /// The method that produced it (never `Auto`).
     pub method: Method,
     /// With camera intrinsics: the model origin in the camera frame, mm (x right, y up, z
     /// towards the viewer; the face is at negative z).
     pub translation: Option<Vector3<f64>>,
+}
+
+/// Misfit ([`Estimate::misfit`]) above which an answer carries a [`Warning::PoorFit`]. On the
+/// AFLW2000-3D dev faces (every landmark set, `auto` and `fit`) the largest is 0.25
+/// (`facepose eval --protocol real`); the first 68 MediaPipe points sent as ibug68 give 0.93.
+pub const MISFIT_WARN: f64 = 0.35;
+
+/// Misfit above which the landmarks are refused ([`Error::NotAFace`]): more than twice the
+/// worst real face's.
+pub const MISFIT_REFUSE: f64 = 0.6;
+
+/// Something the caller should know about an answer.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Warning {
+    /// The landmarks fit the face in their scheme poorly (misfit between [`MISFIT_WARN`] and
+    /// [`MISFIT_REFUSE`]).
+    PoorFit { scheme: String, misfit: f64 },
+}
+
+impl fmt::Display for Warning {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Warning::PoorFit { scheme, misfit } => write!(
+                f,
+                "the landmarks fit a face in scheme {scheme} poorly: the best fit leaves {:.0}% \
+                 of their spread unexplained (real faces stay below 25%); check the scheme, the \
+                 order of the points and that x, y are pixels",
+                misfit * 100.0
+            ),
+        }
+    }
+}
+
+/// The warnings of a misfit, or the refusal past [`MISFIT_REFUSE`].
+fn check_misfit(scheme: &str, misfit: f64) -> Result<Vec<Warning>> {
+    if misfit > MISFIT_REFUSE {
+        return Err(Error::NotAFace {
+            scheme: scheme.into(),
+            misfit,
+            limit: MISFIT_REFUSE,
+        });
+    }
+    Ok(if misfit > MISFIT_WARN {
+        vec![Warning::PoorFit {
+            scheme: scheme.into(),
+            misfit,
+        }]
+    } else {
+        vec![]
+    })
 }
 
 /// How the landmarks were made, which decides what hidden points mean.
@@ -213,6 +273,21 @@ pub fn estimate_with(
     if let Some(k) = &opts.camera {
         k.validate()?;
     }
+    let mut e = match model.mesh_scheme(scheme) {
+        Some((mesh, ms)) => estimate_mesh(model, mesh, ms, landmarks, opts)?,
+        None => estimate_in_subset(model, scheme, landmarks, opts)?,
+    };
+    e.warnings = check_misfit(scheme, e.misfit)?;
+    Ok(e)
+}
+
+/// [`estimate_with`] in a scheme of the model's points, without the misfit's check.
+fn estimate_in_subset(
+    model: &PoseModel,
+    scheme: &str,
+    landmarks: &Shape2,
+    opts: &EstimateOptions,
+) -> Result<Estimate> {
     let method = opts.method;
     let subset = model.subset(scheme)?;
     if landmarks.len() != subset.scheme.len() {
@@ -237,13 +312,7 @@ pub fn estimate_with(
             ),
         ));
     }
-    let fit_options = FitOptions {
-        hidden: match opts.style {
-            LandmarkStyle::Projected => Hidden::Keep,
-            LandmarkStyle::Contour => Hidden::DropContour,
-        },
-        ..FitOptions::default()
-    };
+    let fit_options = fit_options(opts.style);
     // The fit methods keep their shape and camera for the perspective refinement.
     let mut fitted: Option<(Cow<'_, [Vector3<f64>]>, crate::estimate::fit::RigidFit)> = None;
     let rotation = match method {
@@ -325,25 +394,125 @@ pub fn estimate_with(
         _ => (rotation, None),
     };
     let visible = map.map_visibility(&model.scheme, model.visibility.lookup(&rotation));
-    let residual = residual(
-        &subset.mean,
-        landmarks,
-        &rotation,
-        &subset.scheme.anchors.eye_left,
-        &subset.scheme.anchors.eye_right,
+    let eyes = (
+        &subset.scheme.anchors.eye_left[..],
+        &subset.scheme.anchors.eye_right[..],
     );
+    let (residual, mut misfit) = residual(&subset.mean, landmarks, &rotation, eyes.0, eyes.1);
+    if matches!(method, Method::Regression | Method::Geometry) {
+        let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
+        let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
+        misfit = self::residual(&subset.mean, landmarks, &f.rotation, eyes.0, eyes.1).1;
+    }
     Ok(Estimate {
         angles: EulerAngles::from_rotation(&rotation),
         rotation,
         visible,
         residual,
+        misfit,
+        warnings: vec![],
+        method,
+        translation,
+    })
+}
+
+/// The fit methods' options for a landmark style.
+fn fit_options(style: LandmarkStyle) -> FitOptions {
+    FitOptions {
+        hidden: match style {
+            LandmarkStyle::Projected => Hidden::Keep,
+            LandmarkStyle::Contour => Hidden::DropContour,
+        },
+        ..FitOptions::default()
+    }
+}
+
+/// A MediaPipe face ([`crate::model::mesh`]): the rigid fit fits the mesh; every other method
+/// runs on the model's own scheme, each model point the mean of its mesh landmarks. The
+/// visibility and the residual are the mesh's.
+fn estimate_mesh(
+    model: &PoseModel,
+    mesh: &FaceMesh,
+    ms: &MeshScheme,
+    landmarks: &Shape2,
+    opts: &EstimateOptions,
+) -> Result<Estimate> {
+    let name = &ms.scheme.name;
+    if landmarks.len() != ms.scheme.len() {
+        return Err(Error::PointCount {
+            what: format!(
+                "landmarks for scheme {name}{}",
+                model.count_hint(landmarks.len())
+            ),
+            expected: ms.scheme.len(),
+            got: landmarks.len(),
+        });
+    }
+    let pose_lm = ms.pose_landmarks(landmarks);
+    // `auto` fits the mesh: on the mesh at known poses it is exact where the shape fit through
+    // the correspondence is 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md),
+    // and it is what MediaPipe's own pose does (a fit of this mesh).
+    let method = match opts.method {
+        Method::Auto => Method::Fit,
+        m => m,
+    };
+    if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
+        return Err(Error::param(
+            "camera",
+            format!(
+                "method {method} is weak-perspective only; use fit, fit-shape or auto with camera intrinsics"
+            ),
+        ));
+    }
+    let (rotation, translation) = match method {
+        Method::Fit => {
+            let f = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))?;
+            match &opts.camera {
+                Some(k) => {
+                    let p = refine_perspective(
+                        &ms.points,
+                        &pose_lm,
+                        &f.weights,
+                        k,
+                        (f.rotation, f.scale, f.translation),
+                    )?;
+                    (p.rotation, Some(p.translation))
+                }
+                None => (f.rotation, None),
+            }
+        }
+        _ => {
+            let proxy = mesh.to_model(&pose_lm, &model.scheme)?;
+            let e = estimate_in_subset(
+                model,
+                &model.scheme.name,
+                &proxy,
+                &EstimateOptions { method, ..*opts },
+            )?;
+            (e.rotation, e.translation)
+        }
+    };
+    let a = &ms.scheme.anchors;
+    let (residual, mut misfit) =
+        residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
+    if matches!(method, Method::Regression | Method::Geometry) {
+        let f = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))?;
+        misfit = self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1;
+    }
+    Ok(Estimate {
+        angles: EulerAngles::from_rotation(&rotation),
+        visible: ms.visible(mesh, &rotation),
+        residual,
+        misfit,
+        warnings: vec![],
+        rotation,
         method,
         translation,
     })
 }
 
 /// The RMS reprojection error at the best scale and translation for a fixed rotation, over the
-/// projected distance between the eye centres. One pass of sums, no allocation:
+/// projected distance between the eye centres, and the misfit ([`Estimate::misfit`]). One pass of sums, no allocation:
 /// with `q = (R X)ₓᵧ`, the least-squares scale is `s = cov(q, y) / var(q)` and the residual
 /// energy `Σ|y - ȳ|² - s² Σ|q - q̄|²`.
 fn residual(
@@ -352,11 +521,11 @@ fn residual(
     r: &Rotation3<f64>,
     eye_l: &[usize],
     eye_r: &[usize],
-) -> f64 {
+) -> (f64, f64) {
     // Sums taken relative to the first present point, so that image coordinates far from the
     // origin do not cancel away the residual.
     let Some((i0, p0)) = lm.iter_present().next() else {
-        return f64::INFINITY;
+        return (f64::INFINITY, f64::INFINITY);
     };
     let (q0, y0) = ((r * mean[i0]).xy(), Vector2::new(p0.x, -p0.y));
     let (mut n, mut sq, mut sy) = (0.0, Vector2::zeros(), Vector2::zeros());
@@ -380,11 +549,17 @@ fn residual(
         idx.iter().map(|&i| mean[i]).sum::<Vector3<f64>>() / idx.len().max(1) as f64
     };
     let iod = s.abs() * (r * (eye(eye_r) - eye(eye_l))).xy().norm();
-    if iod > 0.0 {
+    let residual = if iod > 0.0 {
         (sse / n).sqrt() / iod
     } else {
         f64::INFINITY
-    }
+    };
+    let misfit = if var_y > 0.0 {
+        (sse / var_y).sqrt()
+    } else {
+        f64::INFINITY
+    };
+    (residual, misfit)
 }
 
 #[cfg(test)]
@@ -408,7 +583,8 @@ mod tests {
         let r = EulerAngles::new(20.0, -10.0, 5.0).unwrap().to_rotation();
         let cam = WeakPerspective::new(r, 2.0, Vector2::new(300.0, -200.0)).unwrap();
         let exact = Shape2::full(face().iter().map(|x| cam.project(x)).collect()).unwrap();
-        assert!(residual(&face(), &exact, &r, &[0], &[1]) < 1e-9);
+        assert!(residual(&face(), &exact, &r, &[0], &[1]).0 < 1e-9);
+        assert!(residual(&face(), &exact, &r, &[0], &[1]).1 < 1e-9);
         // Move the chin 3 px down: the best scale and shift spread it, so compare with a
         // direct least-squares fit of scale and translation.
         let mut pts: Vec<Vector2<f64>> = exact.points().to_vec();
@@ -434,8 +610,11 @@ mod tests {
             / 6.0)
             .sqrt();
         let iod = s * (q[1] - q[0]).norm();
-        let got = residual(&face(), &moved, &r, &[0], &[1]);
+        let (got, misfit) = residual(&face(), &moved, &r, &[0], &[1]);
         assert!((got - rms / iod).abs() < 1e-12, "{got} vs {}", rms / iod);
+        let spread = y.iter().map(|b| (b - ym).norm_squared()).sum::<f64>();
+        let want = (rms * rms * 6.0 / spread).sqrt();
+        assert!((misfit - want).abs() < 1e-12, "{misfit} vs {want}");
         assert!(got > 0.0);
     }
 }

@@ -597,3 +597,89 @@ mod tests {
         assert_eq!(p.series[0].points, vec![(5.0, 2.0), (45.0, 6.0)]);
     }
 }
+
+/// The misfit ([`crate::pose::Estimate::misfit`]) of real faces, per source and method: the
+/// figures behind the "does it look like a face" thresholds.
+#[derive(Debug, Clone, Serialize)]
+pub struct MisfitRow {
+    pub source: Source,
+    pub method: Method,
+    pub faces: usize,
+    pub p50: f64,
+    pub p99: f64,
+    pub max: f64,
+    /// Faces whose answer carries a warning, or that were refused as not a face.
+    pub flagged: usize,
+}
+
+/// [`MisfitRow`]s over every face (not only `within_99`): each of `sources` with each of
+/// `methods`.
+pub fn misfits(
+    model: &PoseModel,
+    faces: &[AflwFace],
+    sources: &[Source],
+    methods: &[Method],
+) -> Vec<MisfitRow> {
+    let mut rows = Vec::new();
+    for &source in sources {
+        for &method in methods {
+            let (mut m, mut flagged) = (Vec::new(), 0);
+            for face in faces {
+                let Ok((scheme, lm)) = landmarks(face, source) else {
+                    continue;
+                };
+                match estimate(model, scheme, &lm, method) {
+                    Ok(e) => {
+                        flagged += usize::from(!e.warnings.is_empty());
+                        m.push(e.misfit);
+                    }
+                    Err(crate::Error::NotAFace { misfit, .. }) => {
+                        flagged += 1;
+                        m.push(misfit);
+                    }
+                    Err(_) => {}
+                }
+            }
+            if m.is_empty() {
+                continue; // a method the scheme does not serve (geometry on dlib5)
+            }
+            m.sort_by(f64::total_cmp);
+            let q = |p: f64| {
+                m.get(((m.len().max(1) - 1) as f64 * p).round() as usize)
+                    .copied()
+                    .unwrap_or(f64::NAN)
+            };
+            rows.push(MisfitRow {
+                source,
+                method,
+                faces: m.len(),
+                p50: q(0.5),
+                p99: q(0.99),
+                max: q(1.0),
+                flagged,
+            });
+        }
+    }
+    rows
+}
+
+/// The misfit rows as a Markdown table.
+pub fn misfit_markdown(rows: &[MisfitRow]) -> String {
+    let mut s = String::from(
+        "| landmarks | method | faces | misfit p50 | p99 | max | warned or refused |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        s.push_str(&format!(
+            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {} |\n",
+            r.source.name(),
+            r.method,
+            r.faces,
+            r.p50,
+            r.p99,
+            r.max,
+            r.flagged
+        ));
+    }
+    s
+}

@@ -2,6 +2,7 @@
 
 pub mod aflw;
 pub mod hpr_table;
+pub mod mesh;
 pub mod paper;
 pub mod plot;
 pub mod sfm_check;

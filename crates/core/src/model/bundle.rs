@@ -15,6 +15,7 @@ use nalgebra::{DMatrix, Vector3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
+use super::mesh::{FaceMesh, MeshSource};
 use super::packed_bits;
 use super::train::{
     TrainOptions, bins_with_visibility, geometry_of, map_bins, subset_of, synthesize_bins,
@@ -112,6 +113,25 @@ pub struct VisibilityEntry {
     pub views: Vec<String>,
 }
 
+/// MediaPipe's face mesh in the model's frame ([`super::mesh`]): what serves `mediapipe468` and
+/// `mediapipe478`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshEntry {
+    /// The 468 vertices, model frame, mm.
+    pub vertices: Vec<[f64; 3]>,
+    /// The mesh's triangles (HPR).
+    pub triangles: Vec<[usize; 3]>,
+    /// Model point `k` = the mean of vertices `to_model[k]`.
+    pub to_model: Vec<Vec<usize>>,
+    /// The visibility map's yaw directions (degrees).
+    pub map_yaw: AngleRange,
+    /// The visibility map's pitch directions (degrees).
+    pub map_pitch: AngleRange,
+    /// HPR's visibility of the vertices over the map's directions, as [`VisibilityEntry::map`].
+    pub map: String,
+}
+
 /// A shape basis: `shape = mean + Σ c_k components_k`, `c ~ N(prior_mean, I)`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -145,6 +165,10 @@ pub struct Bundle {
     pub training: TrainOptions,
     pub regressions: Vec<RegressionEntry>,
     pub shape_basis: Option<BasisEntry>,
+    /// MediaPipe's face mesh; absent in bundles without one (and then left out of the JSON, so
+    /// that their checksums still verify).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<MeshEntry>,
     pub checksum: String,
 }
 
@@ -207,6 +231,21 @@ impl Bundle {
             components: b.components().iter().map(|c| to_arrays(c)).collect(),
             prior_mean: b.prior_mean().to_vec(),
         });
+        let mesh = model.mesh.as_ref().map(|m| {
+            let src = m.source();
+            let (map_yaw, map_pitch) = m.visibility().grid();
+            MeshEntry {
+                vertices: to_arrays(&src.vertices),
+                triangles: src.triangles.clone(),
+                to_model: src.to_model.clone(),
+                map_yaw,
+                map_pitch,
+                map: packed_bits::encode(
+                    m.visibility().bits().chunks(src.vertices.len()),
+                    src.vertices.len(),
+                ),
+            }
+        });
         let mut bundle = Bundle {
             format: FORMAT.into(),
             schema_version: SCHEMA_VERSION,
@@ -222,6 +261,7 @@ impl Bundle {
             training: training.clone(),
             regressions,
             shape_basis,
+            mesh,
             checksum: String::new(),
         };
         bundle.checksum = bundle.compute_checksum()?;
@@ -444,6 +484,10 @@ impl Bundle {
             }
             None => None,
         };
+        let mesh = match &self.mesh {
+            Some(m) => Some(m.decode(&self.scheme)?),
+            None => None,
+        };
         Ok(PoseModel {
             scheme: self.scheme.clone(),
             mean,
@@ -452,6 +496,7 @@ impl Bundle {
             geometry: g,
             subsets,
             morph,
+            mesh,
         })
     }
 }
@@ -516,6 +561,37 @@ impl VisibilityEntry {
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok((map, views))
+    }
+}
+
+impl MeshEntry {
+    /// The served mesh, checked against the model's scheme.
+    fn decode(&self, scheme: &Scheme) -> Result<FaceMesh, BundleError> {
+        if let Some(i) = self
+            .vertices
+            .iter()
+            .position(|p| !p.iter().all(|v| v.is_finite()))
+        {
+            return Err(invalid(
+                format!("mesh.vertices[{i}]"),
+                "not a finite number",
+            ));
+        }
+        let n = self.vertices.len();
+        let source = MeshSource {
+            vertices: to_vectors(&self.vertices),
+            triangles: self.triangles.clone(),
+            to_model: self.to_model.clone(),
+        };
+        source.validate(scheme.len()).map_err(core("mesh"))?;
+        Triangulation::new(&source.vertices, source.triangles.clone())
+            .map_err(core("mesh.triangles"))?;
+        let cells = self.map_yaw.len() * self.map_pitch.len();
+        let bits = packed_bits::decode(&self.map, n, cells)
+            .map_err(|reason| invalid("mesh.map", reason))?;
+        let map = VisibilityMap::from_bits(self.map_yaw, self.map_pitch, n, bits)
+            .map_err(core("mesh.map"))?;
+        FaceMesh::new(source, scheme, Some(map)).map_err(core("mesh"))
     }
 }
 

@@ -7,6 +7,7 @@
 
 pub mod basis;
 pub mod bundle;
+pub mod mesh;
 pub mod packed_bits;
 pub mod train;
 pub mod validate;
@@ -22,6 +23,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::PaperHpr;
 use crate::shape::{Scheme, Shape2};
 
+pub use mesh::{FaceMesh, MeshScheme, MeshSource};
 pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_population};
 
 /// How a sub-scheme's points come from the model scheme's points.
@@ -110,45 +112,70 @@ pub struct PoseModel {
     /// Subset 0 is the model's own scheme.
     pub subsets: Vec<Subset>,
     pub morph: Option<MorphableBasis>,
+    /// MediaPipe's face mesh, aligned to the mean: the `mediapipe468` and `mediapipe478`
+    /// schemes ([`mesh`]).
+    pub mesh: Option<FaceMesh>,
 }
 
 impl PoseModel {
-    /// The subset serving `scheme_name`, with a message listing the known ones.
+    /// Every scheme the model serves: its subsets' (its own first), then its mesh's.
+    pub fn schemes(&self) -> impl Iterator<Item = &Scheme> {
+        self.subsets.iter().map(|s| &s.scheme).chain(
+            self.mesh
+                .iter()
+                .flat_map(|m| m.schemes().iter().map(|s| &s.scheme)),
+        )
+    }
+
+    /// The mesh scheme called `name`, when the model has a mesh that serves it.
+    pub fn mesh_scheme(&self, name: &str) -> Option<(&FaceMesh, &MeshScheme)> {
+        let mesh = self.mesh.as_ref()?;
+        mesh.scheme(name).map(|s| (mesh, s))
+    }
+
+    /// The scheme called `name`, with a message listing the served ones.
+    pub fn scheme(&self, name: &str) -> Result<&Scheme> {
+        self.schemes()
+            .find(|s| s.name == name)
+            .ok_or_else(|| self.unknown_scheme(name))
+    }
+
+    fn unknown_scheme(&self, name: &str) -> Error {
+        Error::InvalidScheme {
+            scheme: name.into(),
+            reason: format!(
+                "this model serves {}",
+                self.schemes()
+                    .map(|s| s.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }
+    }
+
+    /// The subset serving `scheme_name` (the schemes of the model's points, not its mesh's),
+    /// with a message listing the known ones.
     pub fn subset(&self, scheme_name: &str) -> Result<&Subset> {
         self.subsets
             .iter()
             .find(|s| s.scheme.name == scheme_name)
-            .ok_or_else(|| Error::InvalidScheme {
-                scheme: scheme_name.into(),
-                reason: format!(
-                    "this model serves {}",
-                    self.subsets
-                        .iter()
-                        .map(|s| s.scheme.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            })
+            .ok_or_else(|| self.unknown_scheme(scheme_name))
     }
 
     /// The scheme this model serves with `n` points, when only one has that many (68: `ibug68`,
-    /// 51: `inner51` for the default model). Fails, naming the candidates and their points, when
-    /// several have that many (5: `five` and `dlib5`, two different point sets) or none does.
-    pub fn scheme_for_count(&self, n: usize) -> Result<&Subset> {
-        let fits: Vec<&Subset> = self
-            .subsets
-            .iter()
-            .filter(|s| s.scheme.len() == n)
-            .collect();
+    /// 51: `inner51`, 468: `mediapipe468`, 478: `mediapipe478` for the default model). Fails,
+    /// naming the candidates and their points, when several have that many (5: `five` and
+    /// `dlib5`, two different point sets) or none does.
+    pub fn scheme_for_count(&self, n: usize) -> Result<&Scheme> {
+        let fits: Vec<&Scheme> = self.schemes().filter(|s| s.len() == n).collect();
         match fits[..] {
             [one] => Ok(one),
             [] => Err(Error::param(
                 "scheme",
                 format!(
                     "{n} landmarks, and no scheme of this model has that many ({})",
-                    self.subsets
-                        .iter()
-                        .map(|s| format!("{}: {}", s.scheme.name, s.scheme.len()))
+                    self.schemes()
+                        .map(|s| format!("{}: {}", s.name, s.len()))
                         .collect::<Vec<_>>()
                         .join(", ")
                 ),
@@ -166,16 +193,21 @@ impl PoseModel {
     /// For a landmark count that does not match `scheme`: which served schemes have that many
     /// points ("" when none does), to append to the error.
     pub fn count_hint(&self, n: usize) -> String {
-        let fits: Vec<&Subset> = self
-            .subsets
-            .iter()
-            .filter(|s| s.scheme.len() == n)
-            .collect();
+        let fits: Vec<&Scheme> = self.schemes().filter(|s| s.len() == n).collect();
         if fits.is_empty() {
             String::new()
         } else {
             format!(" ({n} points is {})", describe_schemes(&fits))
         }
+    }
+
+    /// Serves MediaPipe's face mesh: `source` (vertices with model-frame axes, in mm, and the
+    /// correspondence to this model's scheme) is aligned to the mean and its visibility computed
+    /// by HPR over its triangles.
+    pub fn attach_mesh(&mut self, source: &MeshSource) -> Result<()> {
+        let aligned = source.aligned_to(&self.scheme, &self.mean)?;
+        self.mesh = Some(FaceMesh::new(aligned, &self.scheme, None)?);
+        Ok(())
     }
 
     /// The model's landmarks expanded from a subset's (missing where the subset has no point).
@@ -195,10 +227,16 @@ impl PoseModel {
 }
 
 /// `five [eye_left, eye_right, ...] or dlib5 [...]`: the schemes with their points in order.
-fn describe_schemes(subsets: &[&Subset]) -> String {
-    subsets
+fn describe_schemes(schemes: &[&Scheme]) -> String {
+    schemes
         .iter()
-        .map(|s| format!("{} [{}]", s.scheme.name, s.scheme.points.join(", ")))
+        .map(|s| {
+            if s.len() <= 10 {
+                format!("{} [{}]", s.name, s.points.join(", "))
+            } else {
+                s.name.clone()
+            }
+        })
         .collect::<Vec<_>>()
         .join(" or ")
 }

@@ -204,6 +204,7 @@ pub fn train(
         geometry,
         subsets,
         morph,
+        mesh: None,
     })
 }
 
