@@ -11,7 +11,7 @@ use clap::{Args, ValueEnum};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::PoseModel;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
-use facepose_core::record::{Landmarks, PoseRecord, shape_from_points};
+use facepose_core::record::{ImageSize, Landmarks, PoseRecord, pixel_shape};
 use facepose_core::shape::Shape2;
 use serde::Deserialize;
 use serde_json::{Value, json};
@@ -50,9 +50,10 @@ pub struct EstimateArgs {
     /// Input file, or - for standard input.
     #[arg(long)]
     input: PathBuf,
-    /// Landmark scheme of the input (ibug68, inner51, five, dlib5, or a trained model's own).
-    /// Default: chosen per face by its number of points where only one scheme has that many
-    /// (68: ibug68, 51: inner51); 5 points must be named (five or dlib5). A JSON line's own
+    /// Landmark scheme of the input (ibug68, inner51, five, dlib5, mediapipe468, mediapipe478, or
+    /// a trained model's own). Default: chosen per face by its number of points where only one
+    /// scheme has that many (68: ibug68, 51: inner51, 468: mediapipe468, 478: mediapipe478); 5
+    /// points must be named (five or dlib5). A JSON line's own
     /// `"scheme"` takes precedence.
     #[arg(long)]
     scheme: Option<String>,
@@ -78,6 +79,28 @@ pub struct EstimateArgs {
     /// line's own `"landmark_style"` takes precedence.
     #[arg(long, default_value = "projected")]
     landmark_style: String,
+    /// The image's size `width,height` in pixels for every face: the landmarks are then
+    /// normalized coordinates, fractions of the width and height (MediaPipe's x, y). A JSON
+    /// line's own `"image_size": [w, h]` takes precedence.
+    #[arg(long, value_name = "W,H", value_parser = parse_image_size)]
+    image_size: Option<ImageSize>,
+}
+
+fn parse_image_size(s: &str) -> Result<ImageSize, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("image size: {e} (expected width,height)"))?;
+    let [width, height] = v[..] else {
+        return Err(format!(
+            "image size: {} numbers, expected width,height",
+            v.len()
+        ));
+    };
+    let size = ImageSize { width, height };
+    size.validate().map_err(|e| e.to_string())?;
+    Ok(size)
 }
 
 fn parse_camera(s: &str) -> Result<Intrinsics, String> {
@@ -107,7 +130,7 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
     let style: LandmarkStyle = a.landmark_style.parse()?;
     let (_, model) = super::load_model(a.model.as_deref())?;
     if let Some(s) = &a.scheme {
-        model.subset(s)?;
+        model.scheme(s)?;
     }
     let reader: Box<dyn Read> = if a.input.as_os_str() == "-" {
         Box::new(std::io::stdin().lock())
@@ -149,10 +172,10 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                 if first && is_csv_header(&line, a.header) {
                     continue;
                 }
-                let (id, shape) = parse_csv(&line);
+                let (id, shape) = parse_csv(&line, a.image_size);
                 (id, shape.map(|s| (s, LineOptions::default())))
             }
-            _ => parse_jsonl(&line),
+            _ => parse_jsonl(&line, a.image_size),
         };
         let result = parsed.and_then(|(shape, line_opts)| {
             let opts = EstimateOptions {
@@ -223,7 +246,7 @@ fn scheme_of(model: &PoseModel, named: Option<String>, shape: &Shape2) -> Result
         Some(s) => Ok(s),
         None => model
             .scheme_for_count(shape.len())
-            .map(|s| s.scheme.name.clone())
+            .map(|s| s.name.clone())
             .map_err(|e| format!("{e}, with --scheme or a line's \"scheme\"")),
     }
 }
@@ -249,7 +272,10 @@ fn is_csv_header(line: &str, header: Header) -> bool {
 /// One JSON Lines record: `{"landmarks": [[x, y] | null, ...], "id": ...}`.
 /// The landmarks are parsed by [`Landmarks`] (shared with the service); their count is checked
 /// against the scheme by the estimator.
-fn parse_jsonl(line: &str) -> (Option<Value>, Result<(Shape2, LineOptions), String>) {
+fn parse_jsonl(
+    line: &str,
+    image_size: Option<ImageSize>,
+) -> (Option<Value>, Result<(Shape2, LineOptions), String>) {
     let v: Value = match serde_json::from_str(line) {
         Ok(v) => v,
         Err(e) => return (None, Err(format!("not valid JSON: {e}"))),
@@ -261,11 +287,18 @@ fn parse_jsonl(line: &str) -> (Option<Value>, Result<(Shape2, LineOptions), Stri
             Err(format!("\"id\" must be a string or a number, got {bad}")),
         );
     }
-    let shape = match v.get("landmarks") {
-        None => Err("missing \"landmarks\"".to_string()),
-        Some(lm) => Landmarks::deserialize(lm)
+    let image_size = match v.get("image_size") {
+        None | Some(Value::Null) => Ok(image_size),
+        Some(s) => <[f64; 2]>::deserialize(s)
+            .map(|[width, height]| Some(ImageSize { width, height }))
+            .map_err(|e| format!("\"image_size\": {e} (expected [width, height])")),
+    };
+    let shape = match (v.get("landmarks"), image_size) {
+        (_, Err(e)) => Err(e),
+        (None, _) => Err("missing \"landmarks\"".to_string()),
+        (Some(lm), Ok(size)) => Landmarks::deserialize(lm)
             .map_err(|e| format!("\"landmarks\": {e}"))
-            .and_then(|l| l.to_shape().map_err(|e| e.to_string())),
+            .and_then(|l| pixel_shape(&l.0, size).map_err(|e| e.to_string())),
     };
     let opts = (|| {
         let camera = match v.get("camera") {
@@ -297,7 +330,7 @@ fn parse_jsonl(line: &str) -> (Option<Value>, Result<(Shape2, LineOptions), Stri
 
 /// One CSV row: `[id,]x0,y0,...,x{n-1},y{n-1}`, empty cells for a missing point. An odd number
 /// of cells means the first is an id (a point has two).
-fn parse_csv(line: &str) -> (Option<Value>, Result<Shape2, String>) {
+fn parse_csv(line: &str, image_size: Option<ImageSize>) -> (Option<Value>, Result<Shape2, String>) {
     let cells: Vec<&str> = line.split(',').map(str::trim).collect();
     let (id, coords) = if cells.len() % 2 == 1 {
         (Some(json!(cells[0])), &cells[1..])
@@ -319,6 +352,6 @@ fn parse_csv(line: &str) -> (Option<Value>, Result<Shape2, String>) {
         .collect::<Result<Vec<_>, String>>();
     (
         id,
-        pts.and_then(|p| shape_from_points(&p).map_err(|e| e.to_string())),
+        pts.and_then(|p| pixel_shape(&p, image_size).map_err(|e| e.to_string())),
     )
 }

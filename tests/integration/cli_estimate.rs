@@ -162,7 +162,7 @@ fn bad_lines_give_error_records_and_the_run_goes_on() {
     assert_eq!(code, 2);
     assert!(err.contains("unknown method"), "{err}");
     let (code, _, err) = run(
-        &["estimate", "--input", "-", "--scheme", "mediapipe468"],
+        &["estimate", "--input", "-", "--scheme", "mediapipe999"],
         "",
     );
     assert_eq!(code, 2);

@@ -308,7 +308,8 @@ impl From<facepose_core::Error> for ServiceError {
             | E::PointCount { .. }
             | E::Degenerate(_)
             | E::InvalidParameter { .. }
-            | E::InvalidScheme { .. } => e.to_string(),
+            | E::InvalidScheme { .. }
+            | E::NotAFace { .. } => e.to_string(),
         })
     }
 }

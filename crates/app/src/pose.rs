@@ -9,7 +9,7 @@ use crate::registry::ServedModel;
 
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
-use facepose_core::record::{PoseRecord, shape_from_points};
+use facepose_core::record::{ImageSize, PoseRecord, pixel_shape};
 
 /// One face as a transport hands it over. Empty strings mean "not given".
 #[derive(Debug, Clone, Default)]
@@ -20,6 +20,8 @@ pub struct FaceSpec<'a> {
     pub camera: Option<Intrinsics>,
     /// `projected` (default) or `contour`: see [`LandmarkStyle`].
     pub style: Option<&'a str>,
+    /// With it, the landmarks are normalized to this image size (MediaPipe's x, y).
+    pub image_size: Option<ImageSize>,
 }
 
 /// An estimate as the transports send it, with the rotation for stream smoothing and the
@@ -44,9 +46,16 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
     ] {
         ServiceError::check_name_length(what, name.unwrap_or_default())?;
     }
-    let scheme = given(face.scheme).unwrap_or_else(|| model.scheme());
-    // The scheme first: the landmark count is checked against it.
-    model.model.subset(scheme)?;
+    // The scheme first: the landmark count is checked against it. Unnamed, the count chooses
+    // it where only one scheme has that many points.
+    let scheme = match given(face.scheme) {
+        Some(s) => model.model.scheme(s)?.name.as_str(),
+        None => model
+            .model
+            .scheme_for_count(face.landmarks.len())?
+            .name
+            .as_str(),
+    };
     let method: Method = match given(face.method) {
         Some(m) => m.parse()?,
         None => Method::Auto,
@@ -61,7 +70,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         Some(s) => s.parse()?,
         None => LandmarkStyle::default(),
     };
-    let shape = shape_from_points(face.landmarks)?;
+    let shape = pixel_shape(face.landmarks, face.image_size)?;
     let estimate = estimate_with(
         &model.model,
         scheme,

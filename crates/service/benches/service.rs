@@ -58,6 +58,7 @@ fn service(c: &mut Criterion) {
             method: req.method.as_deref(),
             camera: None,
             style: None,
+            image_size: None,
         };
         c.bench_function(&format!("estimate_face fit/{name}"), |b| {
             b.iter(|| estimate_face(&model, black_box(&spec)).unwrap())

@@ -101,6 +101,7 @@ fn main() {
         method: request.method.as_deref(),
         camera: None,
         style: None,
+        image_size: None,
     };
     let basis = model
         .morph

@@ -132,6 +132,7 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
         landmark_style: String::new(),
         xy,
         missing: vec![],
+        image_size: None,
     }
 }
 

@@ -41,6 +41,21 @@ pub fn face5(yaw: f64, pitch: f64, roll: f64) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// MediaPipe Face Landmarker's 478 points of the default model's face mesh at a known pose,
+/// normalized as MediaPipe gives them: pixels of a `width` x `height` image divided by its
+/// size.
+pub fn face478_normalized(yaw: f64, pitch: f64, roll: f64, size: [f64; 2]) -> Vec<[f64; 2]> {
+    let (_, ms) = model().mesh_scheme("mediapipe478").unwrap();
+    let cam = camera(yaw, pitch, roll);
+    ms.points
+        .iter()
+        .map(|x| {
+            let p = cam.project(x);
+            [p.x / size[0], p.y / size[1]]
+        })
+        .collect()
+}
+
 fn camera(yaw: f64, pitch: f64, roll: f64) -> WeakPerspective {
     WeakPerspective::new(
         EulerAngles::new(yaw, pitch, roll).unwrap().to_rotation(),
@@ -79,5 +94,6 @@ pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> 
         landmark_style: String::new(),
         xy: vec![],
         missing: vec![],
+        image_size: None,
     }
 }

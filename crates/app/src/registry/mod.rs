@@ -101,10 +101,7 @@ impl ServedModel {
 
     /// `(name, points)` of every scheme it serves, its own first.
     pub fn schemes(&self) -> impl Iterator<Item = (&str, usize)> {
-        self.model
-            .subsets
-            .iter()
-            .map(|s| (s.scheme.name.as_str(), s.scheme.len()))
+        self.model.schemes().map(|s| (s.name.as_str(), s.len()))
     }
 
     /// The methods it supports (`fit-shape` needs a shape basis).
@@ -529,7 +526,14 @@ mod tests {
         assert_eq!(m.store, None);
         assert_eq!(
             m.schemes().collect::<Vec<_>>(),
-            [("ibug68", 68), ("inner51", 51), ("five", 5), ("dlib5", 5)]
+            [
+                ("ibug68", 68),
+                ("inner51", 51),
+                ("five", 5),
+                ("dlib5", 5),
+                ("mediapipe468", 468),
+                ("mediapipe478", 478)
+            ]
         );
         assert!(set.get(Some("")).is_ok());
         let err = set.get(Some("nope")).unwrap_err();

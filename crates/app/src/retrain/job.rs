@@ -16,7 +16,7 @@ use facepose_core::model::bundle::{Bundle, Provenance, SourceFile};
 use facepose_core::model::validate::{
     Dropped, ValidatedShapes, ValidationOptions, reconstruct_subject, validate_shapes,
 };
-use facepose_core::model::{BasisSource, train_from_population};
+use facepose_core::model::{BasisSource, PoseModel, default_model, train_from_population};
 use facepose_core::shape::Shape2;
 
 /// What a job works with: the registry it writes into and the job table it reports to.
@@ -172,8 +172,11 @@ async fn steps(
     let kept = validated.shapes.len();
     let model = on_blocking_pool("training", move || {
         let basis = BasisSource::Pca(sp.options.components);
-        train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
-            .map_err(|e| ServiceError::invalid(format!("training failed: {e}")))
+        let mut model =
+            train_from_population(&sp.scheme, &validated.shapes, basis, &sp.options.train)
+                .map_err(|e| ServiceError::invalid(format!("training failed: {e}")))?;
+        carry_mesh(&mut model)?;
+        Ok(model)
     })
     .await?;
     if !jobs.stage(id, JobStage::Writing, 0.85) {
@@ -218,6 +221,23 @@ async fn steps(
     Ok(Some(version))
 }
 
+/// An ibug68 model serves MediaPipe input as the default model does: the default model's face
+/// mesh (MediaPipe's canonical mesh) re-aligned to the new mean, so that web apps sending
+/// MediaPipe's points keep their answers across a retrain.
+fn carry_mesh(model: &mut PoseModel) -> Result<(), ServiceError> {
+    if model.scheme.name != "ibug68" {
+        return Ok(());
+    }
+    let (_, default) = default_model()
+        .map_err(|e| ServiceError::internal(format!("the embedded default model: {e}")))?;
+    if let Some(mesh) = &default.mesh {
+        model
+            .attach_mesh(mesh.source())
+            .map_err(|e| ServiceError::invalid(format!("aligning the face mesh failed: {e}")))?;
+    }
+    Ok(())
+}
+
 fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
     let basis = if spec.options.components == 0 {
         "none".to_string()
@@ -232,6 +252,12 @@ fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
          validation); mean by generalized Procrustes analysis; shape basis: {basis}",
         spec.uploaded, spec.kind
     );
+    if spec.scheme.name == "ibug68" {
+        notes.push_str(
+            "; face mesh: the default model's (MediaPipe's canonical face mesh, Apache-2.0), \
+             aligned to the new mean",
+        );
+    }
     if !spec.notes.is_empty() {
         notes = format!("{}; {notes}", spec.notes);
     }

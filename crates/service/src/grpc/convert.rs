@@ -7,6 +7,7 @@ use facepose_app::pose::{FacePose, FaceSpec};
 use facepose_app::views::{ModelView, VersionView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::validate::ValidationReport;
+use facepose_core::record::ImageSize;
 
 use super::error;
 use crate::proto;
@@ -84,6 +85,10 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
             cy: c.cy,
         }),
         style: Some(face.landmark_style.as_str()),
+        image_size: face.image_size.map(|s| ImageSize {
+            width: s.width,
+            height: s.height,
+        }),
     }
 }
 
@@ -102,6 +107,7 @@ pub fn pose_message(p: &FacePose, smoothed: bool) -> proto::Pose {
             .translation
             .map(|[x, y, z]| proto::Translation { x, y, z }),
         smoothed,
+        warnings: r.warnings.clone(),
     }
 }
 

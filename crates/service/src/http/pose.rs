@@ -26,6 +26,7 @@ use super::middleware::Deadline;
 use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
 use super::wire::{
     BatchError, BatchPose, BatchRequest, BatchResponse, BatchResult, PoseRequest, PoseResponse,
+    image_size,
 };
 
 /// Bodies up to this size (about six 68-point faces) are parsed and estimated inline; larger
@@ -74,7 +75,8 @@ fn check_conformance(req: &BatchRequest) -> Result<(), HttpError> {
                   scheme: &Option<String>,
                   method: &Option<String>,
                   style: &Option<String>,
-                  camera: &Option<super::wire::Camera>| {
+                  camera: &Option<super::wire::Camera>,
+                  size: Option<[f64; 2]>| {
         for (what, name) in [
             ("scheme", scheme),
             ("method", method),
@@ -92,6 +94,9 @@ fn check_conformance(req: &BatchRequest) -> Result<(), HttpError> {
         if let Some(c) = camera {
             Intrinsics::from(*c).validate().map_err(|e| at(i, &e))?;
         }
+        if let Some(size) = image_size(size) {
+            size.validate().map_err(|e| at(i, &e))?;
+        }
         Ok::<(), HttpError>(())
     };
     ServiceError::check_name_length("model", req.model.as_deref().unwrap_or_default())?;
@@ -101,9 +106,17 @@ fn check_conformance(req: &BatchRequest) -> Result<(), HttpError> {
         &req.method,
         &req.landmark_style,
         &req.camera,
+        req.image_size,
     )?;
     for (i, f) in req.faces.iter().enumerate() {
-        fields(Some(i), &f.scheme, &f.method, &f.landmark_style, &f.camera)?;
+        fields(
+            Some(i),
+            &f.scheme,
+            &f.method,
+            &f.landmark_style,
+            &f.camera,
+            f.image_size,
+        )?;
         check_coordinates(&f.landmarks.0).map_err(|e| at(Some(i), &e))?;
     }
     Ok(())
@@ -141,6 +154,7 @@ pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response,
             method: req.method.as_deref(),
             camera: req.camera.map(Into::into),
             style: req.landmark_style.as_deref(),
+            image_size: image_size(req.image_size),
         },
     );
     let mut tally = FaceTally::default();
@@ -228,6 +242,7 @@ pub fn answer_batch(
                 .landmark_style
                 .as_deref()
                 .or(req.landmark_style.as_deref()),
+            image_size: image_size(face.image_size.or(req.image_size)),
         };
         match estimate_face(model, &spec) {
             Ok(p) => {

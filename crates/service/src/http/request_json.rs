@@ -154,7 +154,15 @@ impl<'a> Reader<'a> {
             self,
             req,
             landmarks,
-            [scheme, method, model, camera, landmark_style, id]
+            [
+                scheme,
+                method,
+                model,
+                camera,
+                landmark_style,
+                image_size,
+                id
+            ]
         );
         Some(req)
     }
@@ -165,7 +173,7 @@ impl<'a> Reader<'a> {
             self,
             face,
             landmarks,
-            [scheme, method, camera, landmark_style, id]
+            [scheme, method, camera, landmark_style, image_size, id]
         );
         Some(face)
     }
@@ -198,7 +206,7 @@ impl<'a> Reader<'a> {
             self,
             req,
             faces,
-            [scheme, method, camera, landmark_style, model]
+            [scheme, method, camera, landmark_style, image_size, model]
         );
         Some(req)
     }

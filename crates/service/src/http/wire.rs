@@ -6,7 +6,7 @@ use facepose_app::views::{ModelView, ModelsView, VersionView, VersionsView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::{LandmarkStyle, Method};
-use facepose_core::record::MAX_COORDINATE;
+use facepose_core::record::{ImageSize, MAX_COORDINATE, MAX_IMAGE_SIDE};
 use facepose_core::record::{Landmarks, PoseRecord};
 use facepose_core::shape::MAX_POINTS;
 use serde::{Deserialize, Serialize};
@@ -129,6 +129,30 @@ fn names_schema(names: &[&str], default: &str, what: &str) -> ObjectBuilder {
         .description(Some(format!("{what}; empty or absent: `{default}`")))
 }
 
+/// `[width, height]` in pixels.
+fn image_size_schema() -> ArrayBuilder {
+    let side = ObjectBuilder::new()
+        .schema_type(Type::Number)
+        .exclusive_minimum(Some(0.0))
+        .maximum(Some(MAX_IMAGE_SIDE));
+    ArrayBuilder::new()
+        .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+        .items(side)
+        .min_items(Some(2))
+        .max_items(Some(2))
+        .description(Some(
+            "The image's [width, height] in pixels: the landmarks are then normalized \
+             coordinates, fractions of the width and height within [0, 1] (MediaPipe's x, y; a \
+             face running off the frame may reach -0.25 to 1.25). Absent: the landmarks are \
+             pixels.",
+        ))
+}
+
+/// The image size of a request, if it gave one.
+pub fn image_size(v: Option<[f64; 2]>) -> Option<ImageSize> {
+    v.map(|[width, height]| ImageSize { width, height })
+}
+
 fn method_schema() -> ObjectBuilder {
     names_schema(&Method::NAMES, "auto", "The estimation method")
 }
@@ -154,7 +178,9 @@ pub struct PoseRequest {
     /// point that could not be found.
     #[schema(schema_with = landmarks_schema)]
     pub landmarks: Landmarks,
-    /// The landmark scheme (`ibug68`, `inner51`, `five`, `dlib5`, ...); default: the model's own.
+    /// The landmark scheme (`ibug68`, `inner51`, `five`, `dlib5`, `mediapipe468`,
+    /// `mediapipe478`, ...); default: the one scheme with that many points (5 points must name
+    /// `five` or `dlib5`).
     #[serde(default)]
     #[schema(max_length = 64)]
     pub scheme: Option<String>,
@@ -175,6 +201,10 @@ pub struct PoseRequest {
     #[serde(default)]
     #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
+    /// `[width, height]`: the landmarks are normalized to this image size (MediaPipe's x, y).
+    #[serde(default)]
+    #[schema(schema_with = image_size_schema)]
+    pub image_size: Option<[f64; 2]>,
     /// Echoed in the response.
     #[serde(default)]
     pub id: Option<FaceId>,
@@ -212,6 +242,9 @@ pub struct BatchFace {
     #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
     #[serde(default)]
+    #[schema(schema_with = image_size_schema)]
+    pub image_size: Option<[f64; 2]>,
+    #[serde(default)]
     pub id: Option<FaceId>,
 }
 
@@ -239,6 +272,9 @@ pub struct BatchRequest {
     #[serde(default)]
     #[schema(schema_with = style_schema)]
     pub landmark_style: Option<String>,
+    #[serde(default)]
+    #[schema(schema_with = image_size_schema)]
+    pub image_size: Option<[f64; 2]>,
     /// One model for the whole batch; default: `default`.
     #[serde(default)]
     #[schema(max_length = 64)]

@@ -24,7 +24,7 @@ use prost::encoding::{
 };
 use prost::{DecodeError, Message};
 
-use super::{Camera, Landmark, Translation};
+use super::{Camera, ImageSize, Landmark, Translation};
 
 /// One face to estimate.
 #[derive(Clone, PartialEq, Default, Debug)]
@@ -32,7 +32,7 @@ pub struct Face {
     /// The landmarks, in the order of the scheme (68 for ibug68, 51 for inner51, 5 for five).
     /// Set these or `xy`, not both.
     pub landmarks: Vec<Landmark>,
-    /// The landmark scheme; empty: the model's own scheme (ibug68 for the default model).
+    /// The landmark scheme; empty: the one scheme with that many points.
     pub scheme: String,
     /// auto | fit | fit-shape | regression | geometry; empty: auto.
     pub method: String,
@@ -47,6 +47,8 @@ pub struct Face {
     pub xy: Vec<f64>,
     /// With `xy`: the indices of the landmarks the client could not find, in any order.
     pub missing: Vec<u32>,
+    /// The image's size: the landmarks are then normalized coordinates (MediaPipe's x, y).
+    pub image_size: Option<ImageSize>,
 }
 
 /// A pose estimate.
@@ -70,6 +72,8 @@ pub struct Pose {
     pub translation: Option<Translation>,
     /// In EstimateStream with smoothing on: whether yaw/pitch/roll/rotation are smoothed.
     pub smoothed: bool,
+    /// What the caller should know about this answer.
+    pub warnings: Vec<String>,
 }
 
 /// Names the field of a decode error, as prost's derive does.
@@ -92,6 +96,9 @@ impl Message for Face {
         encode_string(6, &self.landmark_style, buf);
         encode_doubles(7, &self.xy, buf);
         uint32::encode_packed(8, &self.missing, buf);
+        if let Some(size) = &self.image_size {
+            message::encode(9, size, buf);
+        }
     }
 
     fn merge_field(
@@ -122,6 +129,13 @@ impl Message for Face {
             7 => merge_doubles(wire_type, &mut self.xy, buf, ctx).map_err(in_field(NAME, "xy")),
             8 => uint32::merge_repeated(wire_type, &mut self.missing, buf, ctx)
                 .map_err(in_field(NAME, "missing")),
+            9 => message::merge(
+                wire_type,
+                self.image_size.get_or_insert_with(ImageSize::default),
+                buf,
+                ctx,
+            )
+            .map_err(in_field(NAME, "image_size")),
             _ => skip_field(wire_type, tag, buf, ctx),
         }
     }
@@ -138,6 +152,10 @@ impl Message for Face {
             + string_len(6, &self.landmark_style)
             + double::encoded_len_packed(7, &self.xy)
             + uint32::encoded_len_packed(8, &self.missing)
+            + self
+                .image_size
+                .as_ref()
+                .map_or(0, |c| message::encoded_len(9, c))
     }
 
     fn clear(&mut self) {
@@ -161,6 +179,7 @@ impl Message for Pose {
         if self.smoothed {
             pbool::encode(10, &self.smoothed, buf);
         }
+        string::encode_repeated(11, &self.warnings, buf);
     }
 
     fn merge_field(
@@ -196,6 +215,8 @@ impl Message for Pose {
             .map_err(in_field(NAME, "translation")),
             10 => pbool::merge(wire_type, &mut self.smoothed, buf, ctx)
                 .map_err(in_field(NAME, "smoothed")),
+            11 => string::merge_repeated(wire_type, &mut self.warnings, buf, ctx)
+                .map_err(in_field(NAME, "warnings")),
             _ => skip_field(wire_type, tag, buf, ctx),
         }
     }
@@ -215,6 +236,7 @@ impl Message for Pose {
                 .as_ref()
                 .map_or(0, |t| message::encoded_len(9, t))
             + if self.smoothed { key_len(10) + 1 } else { 0 }
+            + string::encoded_len_repeated(11, &self.warnings)
     }
 
     fn clear(&mut self) {
@@ -418,6 +440,7 @@ mod tests {
             camera in proptest::option::of((any_f64(), any_f64(), any_f64(), any_f64())),
             xy in proptest::collection::vec(any_f64(), 0..200),
             missing in proptest::collection::vec(any::<u32>(), 0..5),
+            size in proptest::option::of((any_f64(), any_f64())),
         ) -> (Face, reference::Face) {
             let (ours, theirs): (Vec<_>, Vec<_>) =
                 points.iter().map(|&(x, y, m)| landmark(x, y, m)).unzip();
@@ -432,6 +455,7 @@ mod tests {
                     landmark_style: style.clone(),
                     xy: xy.clone(),
                     missing: missing.clone(),
+                    image_size: size.map(|(width, height)| ImageSize { width, height }),
                 },
                 reference::Face {
                     landmarks: theirs,
@@ -442,6 +466,7 @@ mod tests {
                     landmark_style: style,
                     xy,
                     missing,
+                    image_size: size.map(|(width, height)| reference::ImageSize { width, height }),
                 },
             )
         }
@@ -455,6 +480,7 @@ mod tests {
             method in text(), scheme in text(),
             translation in proptest::option::of((any_f64(), any_f64(), any_f64())),
             smoothed in any::<bool>(),
+            warnings in proptest::collection::vec(text(), 0..3),
         ) -> (Pose, reference::Pose) {
             let (yaw, pitch, roll, residual) = angles;
             (
@@ -467,11 +493,13 @@ mod tests {
                     scheme: scheme.clone(),
                     translation: translation.map(|(x, y, z)| Translation { x, y, z }),
                     smoothed,
+                    warnings: warnings.clone(),
                 },
                 reference::Pose {
                     yaw, pitch, roll, rotation, visible, residual, method, scheme,
                     translation: translation.map(|(x, y, z)| reference::Translation { x, y, z }),
                     smoothed,
+                    warnings,
                 },
             )
         }

@@ -26,6 +26,69 @@ fn request(face: proto::Face, model: &str) -> proto::EstimateRequest {
 }
 
 #[tokio::test]
+async fn mediapipe_faces_in_normalized_coordinates() {
+    let server = Server::start(&[]);
+    let mut c = server.grpc().await;
+    let size = [640.0, 480.0];
+    let image_size = Some(proto::ImageSize {
+        width: size[0],
+        height: size[1],
+    });
+    for pose @ (y, p, r) in [(0.0, 0.0, 0.0), (35.0, -10.0, 12.0), (-55.0, 20.0, -8.0)] {
+        let lm = face478_normalized(y, p, r, size);
+        let mut face = proto_face(&lm, "", "", "mp");
+        face.image_size = image_size;
+        let pose_msg = c
+            .estimate(request(face, ""))
+            .await
+            .unwrap()
+            .into_inner()
+            .pose
+            .unwrap();
+        assert_pose(&pose_msg, pose, 0.01);
+        assert_eq!(pose_msg.scheme, "mediapipe478");
+        assert_eq!(pose_msg.visible.len(), 478);
+        assert!(pose_msg.warnings.is_empty());
+    }
+    // Bad input: INVALID_ARGUMENT saying what to fix.
+    let lm = face478_normalized(10.0, 0.0, 0.0, size);
+    let mut nan = lm.clone();
+    nan[7][1] = f64::NAN;
+    let with_size = |pts: &[[f64; 2]], scheme: &str| {
+        let mut f = proto_face(pts, scheme, "", "");
+        f.image_size = image_size;
+        f
+    };
+    let cases = [
+        (
+            proto_face(&lm, "", "", ""),
+            "look like normalized coordinates",
+        ),
+        (
+            with_size(&lm[..470], "mediapipe478"),
+            "expected 478 points, got 470",
+        ),
+        (with_size(&nan, ""), "landmark 7 y is not a finite number"),
+        (
+            with_size(
+                &lm.iter().map(|p| [p[0] * 640.0, p[1]]).collect::<Vec<_>>(),
+                "",
+            ),
+            "is not a normalized coordinate",
+        ),
+    ];
+    for (face, want) in cases {
+        let err = c.estimate(request(face, "")).await.unwrap_err();
+        assert_eq!(err.code(), Code::InvalidArgument, "{err:?}");
+        assert!(
+            err.message().contains(want),
+            "{:?} lacks {want:?}",
+            err.message()
+        );
+    }
+}
+
+#[tokio::test]
 async fn unary_batch_and_models() {
     let server = Server::start(&["--max-batch", "50", "--max-body", "64KiB"]);
     let mut c = server.grpc().await;
@@ -71,7 +134,7 @@ async fn unary_batch_and_models() {
         (
             request(proto_face(&ok[..10], "", "", ""), ""),
             Code::InvalidArgument,
-            "expected 68 points, got 10",
+            "10 landmarks, and no scheme of this model has that many",
         ),
         (
             request(nan, ""),
@@ -89,7 +152,7 @@ async fn unary_batch_and_models() {
             "degenerate",
         ),
         (
-            request(proto_face(&ok, "mediapipe468", "", ""), ""),
+            request(proto_face(&ok, "mediapipe999", "", ""), ""),
             Code::InvalidArgument,
             "this model serves ibug68",
         ),
@@ -150,7 +213,10 @@ async fn unary_batch_and_models() {
     match &resp.results[1].result {
         Some(face_result::Result::Error(e)) => {
             assert_eq!(e.code, "INVALID_ARGUMENT");
-            assert!(e.message.contains("expected 68 points, got 3"));
+            assert!(
+                e.message
+                    .contains("3 landmarks, and no scheme of this model has that many")
+            );
         }
         other => panic!("{other:?}"),
     }
@@ -201,7 +267,14 @@ async fn unary_batch_and_models() {
             .iter()
             .map(|s| (s.name.as_str(), s.points))
             .collect::<Vec<_>>(),
-        [("ibug68", 68), ("inner51", 51), ("five", 5), ("dlib5", 5)]
+        [
+            ("ibug68", 68),
+            ("inner51", 51),
+            ("five", 5),
+            ("dlib5", 5),
+            ("mediapipe468", 468),
+            ("mediapipe478", 478)
+        ]
     );
     let m = c
         .get_model(proto::GetModelRequest {

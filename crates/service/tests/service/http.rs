@@ -135,6 +135,78 @@ async fn known_poses_come_back() {
 }
 
 #[tokio::test]
+async fn mediapipe_faces_in_normalized_coordinates() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose");
+    let size = [1280.0, 720.0];
+    for &pose in &POSES {
+        let (y, p, r) = pose;
+        let lm = face478_normalized(y, p, r, size);
+        // The scheme by name, and by the number of points.
+        for scheme in [json!("mediapipe478"), Value::Null] {
+            let body = json!({"landmarks": lm, "image_size": size, "scheme": scheme});
+            let (status, v) = post(&c, &url, &body).await;
+            assert_eq!(status, StatusCode::OK, "{v}");
+            assert_pose(&v, pose, 0.01);
+            assert_eq!(v["scheme"], "mediapipe478");
+            assert_eq!(v["method"], "fit");
+            assert_eq!(v["visible"].as_array().unwrap().len(), 478);
+            assert_eq!(v["warnings"], json!([]));
+        }
+        // The 468-point form.
+        let body = json!({"landmarks": lm[..468], "image_size": size});
+        let (status, v) = post(&c, &url, &body).await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        assert_eq!(v["scheme"], "mediapipe468");
+        assert_pose(&v, pose, 0.01);
+    }
+    // The same in a batch, image_size at the batch's level.
+    let lm = face478_normalized(30.0, -12.0, 8.0, size);
+    let body = json!({"image_size": size, "faces": [{"landmarks": lm, "id": 1}]});
+    let (status, v) = post(&c, &server.url("/v1/pose:batch"), &body).await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    assert_pose(&v["results"][0], (30.0, -12.0, 8.0), 0.01);
+    // A new user's mistakes, each a 422 that says what to fix.
+    let pixels: Vec<[f64; 2]> = lm
+        .iter()
+        .map(|p| [p[0] * size[0], p[1] * size[1]])
+        .collect();
+    let cases = [
+        // Normalized coordinates without the image size (a 16:9 frame's).
+        (json!({"landmarks": lm}), "look like normalized coordinates"),
+        // Pixels said to be normalized.
+        (
+            json!({"landmarks": pixels, "image_size": size}),
+            "is not a normalized coordinate",
+        ),
+        (
+            json!({"landmarks": lm, "image_size": [0, 720]}),
+            "image_size",
+        ),
+        (
+            json!({"landmarks": lm[..477], "image_size": size, "scheme": "mediapipe478"}),
+            "expected 478 points, got 477",
+        ),
+        (
+            json!({"landmarks": lm[..300], "image_size": size}),
+            "300 landmarks, and no scheme of this model has that many",
+        ),
+        // MediaPipe's first 68 points sent as ibug68.
+        (
+            json!({"landmarks": pixels[..68], "scheme": "ibug68"}),
+            "do not look like a face in scheme ibug68",
+        ),
+    ];
+    for (body, want) in &cases {
+        let (status, v) = post(&c, &url, body).await;
+        assert_eq!(status.as_u16(), 422, "{v}");
+        let msg = v["error"]["message"].as_str().unwrap();
+        assert!(msg.contains(want), "{msg:?} lacks {want:?}");
+    }
+}
+
+#[tokio::test]
 async fn batches_have_per_face_results_and_a_limit() {
     let server = Server::start(&["--max-batch", "4"]);
     let c = reqwest::Client::new();
@@ -163,7 +235,7 @@ async fn batches_have_per_face_results_and_a_limit() {
         r[1]["error"]["message"]
             .as_str()
             .unwrap()
-            .contains("expected 68 points, got 2")
+            .contains("2 landmarks, and no scheme of this model has that many")
     );
     assert_pose(&r[2], (-45.0, 15.0, -10.0), 1.0);
     assert_eq!(r[2]["scheme"], "five");
@@ -223,7 +295,7 @@ async fn models_health_metrics_and_openapi() {
     assert_eq!(m["default"], true);
     assert_eq!(
         m["schemes"],
-        json!([{"name": "ibug68", "points": 68}, {"name": "inner51", "points": 51}, {"name": "five", "points": 5}, {"name": "dlib5", "points": 5}])
+        json!([{"name": "ibug68", "points": 68}, {"name": "inner51", "points": 51}, {"name": "five", "points": 5}, {"name": "dlib5", "points": 5}, {"name": "mediapipe468", "points": 468}, {"name": "mediapipe478", "points": 478}])
     );
     assert!(m["checksum"].as_str().unwrap().starts_with("sha256:"));
     assert!(
@@ -329,7 +401,7 @@ async fn bad_input_says_what_to_fix() {
         (
             json!({"landmarks": face68(0.0, 0.0, 0.0)[..5]}),
             422,
-            "expected 68 points, got 5",
+            "5 landmarks fit more than one scheme, so name it: five [",
         ),
         (
             json!({"landmarks": face5(0.0, 0.0, 0.0), "scheme": "five", "method": "fit-shape"}),
@@ -367,7 +439,7 @@ async fn bad_input_says_what_to_fix() {
             "out of range",
         ),
         (
-            json!({"landmarks": ok, "scheme": "mediapipe468"}),
+            json!({"landmarks": ok, "scheme": "mediapipe999"}),
             422,
             "this model serves ibug68, inner51, five",
         ),

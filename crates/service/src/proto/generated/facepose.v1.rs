@@ -23,6 +23,14 @@ pub struct Camera {
     #[prost(double, tag = "4")]
     pub cy: f64,
 }
+/// An image's size, pixels.
+#[derive(Clone, Copy, PartialEq, ::prost::Message)]
+pub struct ImageSize {
+    #[prost(double, tag = "1")]
+    pub width: f64,
+    #[prost(double, tag = "2")]
+    pub height: f64,
+}
 /// The model origin in the camera frame, mm (x right, y up, z towards the viewer).
 #[derive(Clone, Copy, PartialEq, ::prost::Message)]
 pub struct Translation {

@@ -31,7 +31,8 @@ pub struct Face {
     /// Set these or `xy`, not both.
     #[prost(message, repeated, tag = "1")]
     pub landmarks: ::prost::alloc::vec::Vec<Landmark>,
-    /// The landmark scheme; empty: the model's own scheme (ibug68 for the default model).
+    /// The landmark scheme (ibug68, inner51, five, dlib5, mediapipe468, mediapipe478, ...); empty:
+    /// the one scheme with that many points (5 points must name five or dlib5).
     #[prost(string, tag = "2")]
     pub scheme: ::prost::alloc::string::String,
     /// auto | fit | fit-shape | regression | geometry; empty: auto.
@@ -59,6 +60,19 @@ pub struct Face {
     /// `xy` are ignored), in any order.
     #[prost(uint32, repeated, tag = "8")]
     pub missing: ::prost::alloc::vec::Vec<u32>,
+    /// The image's size in pixels: the landmarks are then normalized coordinates, fractions of the
+    /// width and height within \[0, 1\] (MediaPipe's x, y; a face running off the frame may reach
+    /// -0.25 to 1.25). Unset: the landmarks are pixels.
+    #[prost(message, optional, tag = "9")]
+    pub image_size: ::core::option::Option<ImageSize>,
+}
+/// An image's size, pixels.
+#[derive(Clone, Copy, PartialEq, ::prost::Message)]
+pub struct ImageSize {
+    #[prost(double, tag = "1")]
+    pub width: f64,
+    #[prost(double, tag = "2")]
+    pub height: f64,
 }
 /// The model origin in the camera frame, mm (x right, y up, z towards the viewer).
 #[derive(Clone, Copy, PartialEq, ::prost::Message)]
@@ -101,6 +115,10 @@ pub struct Pose {
     /// In EstimateStream with smoothing on: whether yaw/pitch/roll/rotation are smoothed.
     #[prost(bool, tag = "10")]
     pub smoothed: bool,
+    /// What the caller should know about this answer, e.g. that the landmarks fit a face in their
+    /// scheme poorly (empty when there is nothing to say).
+    #[prost(string, repeated, tag = "11")]
+    pub warnings: ::prost::alloc::vec::Vec<::prost::alloc::string::String>,
 }
 /// Why one face could not be estimated.
 #[derive(Clone, PartialEq, Eq, Hash, ::prost::Message)]
