@@ -133,6 +133,18 @@ pub enum ServiceError {
     },
     #[error("unknown model {name:?}; loaded models: {}", loaded.join(", "))]
     UnknownModel { name: String, loaded: Vec<String> },
+    /// A scheme the model does not serve, asked for by name as a resource
+    /// (`/v1/models/{name}/schemes/{scheme}`); in a pose request an unknown scheme is a value,
+    /// `Invalid`.
+    #[error(
+        "model {model:?} serves no scheme {scheme:?}; it serves {}",
+        served.join(", ")
+    )]
+    UnknownScheme {
+        model: String,
+        scheme: String,
+        served: Vec<String>,
+    },
     /// No such model folder entry.
     #[error(
         "no model {name:?} in the models folder{}",
@@ -277,6 +289,7 @@ impl ServiceError {
         match self {
             E::Invalid(_) | E::TooFewShapes { .. } => ErrorKind::InvalidArgument,
             E::UnknownModel { .. }
+            | E::UnknownScheme { .. }
             | E::NotInFolder { .. }
             | E::UnknownVersion(_)
             | E::UnknownJob { .. } => ErrorKind::NotFound,

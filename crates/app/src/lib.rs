@@ -39,7 +39,10 @@ use metrics::Metrics;
 use registry::{ModelSet, Registry, RegistryError, SyncProblem, load_models};
 use retrain::RawUpload;
 use retrain::job::Trainer;
-use views::{ModelDetail, ModelView, ModelsView, VersionsView, model_view, versions_of};
+use views::{
+    ModelDetail, ModelView, ModelsView, SchemeDetail, VersionsView, model_view, scheme_detail,
+    versions_of,
+};
 
 /// The request limits, shared by both transports.
 #[derive(Debug, Clone, Copy)]
@@ -296,6 +299,13 @@ impl App {
             model: model_view(m, &set, &self.registry.catalog()),
             provenance: m.provenance.clone(),
         })
+    }
+
+    /// A scheme that the served model `name` serves: its points, the model's mean shape in it
+    /// and its anchors.
+    pub fn scheme_detail(&self, name: &str, scheme: &str) -> Result<SchemeDetail, ServiceError> {
+        let set = self.registry.snapshot();
+        scheme_detail(set.get(Some(name))?, scheme)
     }
 
     /// The versions of the models folder entry `name` (also of a model not served yet), read

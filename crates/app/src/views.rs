@@ -3,7 +3,9 @@
 
 use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::Method;
+use facepose_core::shape::Anchors;
 
+use crate::error::ServiceError;
 use crate::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
 
 /// A scheme a model serves.
@@ -41,6 +43,52 @@ pub struct ModelView {
 pub struct ModelDetail {
     pub model: ModelView,
     pub provenance: Provenance,
+}
+
+/// A scheme a served model serves, with what a client needs to synthesize or draw its faces:
+/// the points' names, the model's mean shape in that scheme and the semantic anchors.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeDetail {
+    /// The model's name and the version that answered.
+    pub model: String,
+    pub model_version: String,
+    /// The scheme's name.
+    pub name: String,
+    /// One name per point, in the scheme's order.
+    pub points: Vec<String>,
+    /// The model's mean shape in this scheme, one `[x, y, z]` per point: the model frame
+    /// (x towards the subject's left, y up, z towards the camera), millimetres, the model's
+    /// origin at the centroid of its own scheme's points.
+    pub mean: Vec<[f64; 3]>,
+    /// The points whose mean gives each semantic anchor (eyes, nose tip, mouth corners).
+    pub anchors: Anchors,
+    /// `mirror[i]`: the point `i` becomes when the face is mirrored left-right, if known.
+    pub mirror: Option<Vec<usize>>,
+    /// The points on the face outline (2D-style annotations move them with the silhouette).
+    pub contour: Vec<usize>,
+}
+
+/// The scheme `scheme` of the served model `m`, or `UnknownScheme` naming the ones it serves.
+pub fn scheme_detail(m: &ServedModel, scheme: &str) -> Result<SchemeDetail, ServiceError> {
+    ServiceError::check_name_length("scheme", scheme)?;
+    let Some(subset) = m.model.subsets.iter().find(|s| s.scheme.name == scheme) else {
+        return Err(ServiceError::UnknownScheme {
+            model: m.name.clone(),
+            scheme: scheme.to_string(),
+            served: m.schemes().map(|(name, _)| name.to_string()).collect(),
+        });
+    };
+    let s = &subset.scheme;
+    Ok(SchemeDetail {
+        model: m.name.clone(),
+        model_version: m.version.clone(),
+        name: s.name.clone(),
+        points: s.points.clone(),
+        mean: subset.mean.iter().map(|p| [p.x, p.y, p.z]).collect(),
+        anchors: s.anchors.clone(),
+        mirror: s.mirror.clone(),
+        contour: s.contour.clone(),
+    })
 }
 
 /// Every served model.

@@ -387,6 +387,7 @@ mod tests {
                 "GET /v1/models",
                 "GET /v1/models/jobs/{id}",
                 "GET /v1/models/{name}",
+                "GET /v1/models/{name}/schemes/{scheme}",
                 "GET /v1/models/{name}/versions",
                 "POST /v1/pose",
                 "POST /v1/pose:batch",

@@ -4,7 +4,8 @@
 //! (`facepose_app::App`), and [`error`] maps its errors to statuses in HTTP's words.
 //!
 //! - [`pose`]: `POST /v1/pose`, `POST /v1/pose:batch`.
-//! - [`models`]: the served models, versions, activation, deletion.
+//! - [`models`]: the served models, their schemes (with the mean shape), versions, activation,
+//!   deletion.
 //! - [`retrain`]: `POST /v1/models` (an upload becomes a job), the jobs.
 //! - [`ops`]: `/healthz`, `/readyz`, `/metrics`, `/openapi.json`.
 //! - [`body`], [`request_json`]: reading request bodies; [`middleware`]: limits, request ids,
@@ -78,6 +79,7 @@ pub fn api(app: &Arc<App>) -> OpenApiRouter<Arc<App>> {
         .routes(v1(TimeLimit::Request, routes!(models::list_models)))
         .routes(v1(TimeLimit::Upload, routes!(retrain::retrain)))
         .routes(v1(TimeLimit::Request, routes!(models::get_model)))
+        .routes(v1(TimeLimit::Request, routes!(models::get_scheme)))
         .routes(v1(
             TimeLimit::Request,
             routes!(retrain::get_job, retrain::job_action),
@@ -223,6 +225,7 @@ mod tests {
                 "/v1/models",
                 "/v1/models/jobs/{id}",
                 "/v1/models/{name}",
+                "/v1/models/{name}/schemes/{scheme}",
                 "/v1/models/{name}/versions",
                 "/v1/models/{name}/versions/{version}",
                 "/v1/pose",

@@ -14,7 +14,8 @@ use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use super::error::{ErrorBody, HttpError};
 use super::path::Segments;
 use super::wire::{
-    ActivateResponse, ModelSummary, ModelsResponse, ProvenanceSummary, VersionsResponse,
+    ActivateResponse, ModelSummary, ModelsResponse, ProvenanceSummary, SchemeResponse,
+    VersionsResponse,
 };
 
 /// `GET /v1/models/{name}`: a model with its provenance.
@@ -70,6 +71,24 @@ pub async fn get_model(
         summary: detail.model.into(),
         provenance: detail.provenance.into(),
     }))
+}
+
+/// A scheme the model serves: its points' names, the model's mean 3D shape in it (mm, model
+/// frame) and its anchors, for clients that draw faces or synthesize test landmarks (the demo
+/// page projects it at the pose a user picks).
+#[utoipa::path(get, path = "/v1/models/{name}/schemes/{scheme}", tag = "models",
+    params(("name" = String, Path, description = "The model's name"),
+           ("scheme" = String, Path, description = "A scheme the model serves (`GET /v1/models/{name}` lists them)")),
+    responses(
+        (status = 200, description = "The scheme, with the model's mean shape in it", body = SchemeResponse),
+        (status = 400, description = "A path segment that is not UTF-8 once decoded (`malformed_path`)", body = ErrorBody),
+        (status = 404, description = "Unknown model, or a scheme the model does not serve (the message lists the ones it serves)", body = ErrorBody),
+        (status = 422, description = "A model or scheme name over 64 characters", body = ErrorBody)))]
+pub async fn get_scheme(
+    State(app): State<Arc<App>>,
+    Segments((name, scheme)): Segments<(String, String)>,
+) -> Result<Json<SchemeResponse>, HttpError> {
+    Ok(Json(app.scheme_detail(&name, &scheme)?.into()))
 }
 
 /// A model's versions in the models folder (also for a model not served yet).

@@ -2,7 +2,7 @@
 //! listings (the OpenAPI document is derived from these types), and their conversions from the
 //! application's views. The upload's types are beside its route (`retrain.rs`).
 
-use facepose_app::views::{ModelView, ModelsView, VersionView, VersionsView};
+use facepose_app::views::{ModelView, ModelsView, SchemeDetail, VersionView, VersionsView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::{LandmarkStyle, Method};
@@ -402,6 +402,72 @@ pub struct VersionsResponse {
     /// The folder's active version; `null` if none was ever activated.
     pub active: Option<String>,
     pub versions: Vec<VersionSummary>,
+}
+
+/// The points whose mean gives each semantic anchor ("left" and "right": image-left and
+/// image-right of a frontal face). `nose_tip` and the mouth corners are empty together in a
+/// scheme without them (`dlib5`).
+#[derive(Debug, Serialize, ToSchema)]
+pub struct AnchorsSummary {
+    pub eye_left: Vec<usize>,
+    pub eye_right: Vec<usize>,
+    pub nose_tip: Vec<usize>,
+    pub mouth_left: Vec<usize>,
+    pub mouth_right: Vec<usize>,
+}
+
+/// `GET /v1/models/{name}/schemes/{scheme}`: a scheme the model serves, with the model's mean
+/// shape in it. Projecting `mean` at a pose gives the landmarks a face of that pose would
+/// have: `[u, -v] = s · (R X)[0:2] + t`, with `R` as in the responses.
+#[derive(Debug, Serialize, ToSchema)]
+#[schema(example = json!({
+    "model": "default", "model_version": "1", "scheme": "five",
+    "points": ["eye_left", "eye_right", "nose_tip", "mouth_left", "mouth_right"],
+    "mean": [[-31.4, 38.2, 4.5], [31.3, 38.2, 4.5], [0.2, 4.1, 42.1], [-26.7, -28.9, 7.0], [26.0, -29.2, 6.9]],
+    "anchors": {"eye_left": [0], "eye_right": [1], "nose_tip": [2], "mouth_left": [3], "mouth_right": [4]},
+    "mirror": [1, 0, 2, 4, 3],
+    "contour": []
+}))]
+pub struct SchemeResponse {
+    pub model: String,
+    pub model_version: String,
+    /// The scheme's name, as requests give it.
+    pub scheme: String,
+    /// One name per point, in the order requests send the landmarks.
+    pub points: Vec<String>,
+    /// The model's mean shape in this scheme, `[x, y, z]` per point: millimetres, the model
+    /// frame (x towards the subject's left, y up, z towards the camera; the nose tip has the
+    /// largest z), origin at the centroid of the model's own scheme.
+    pub mean: Vec<[f64; 3]>,
+    pub anchors: AnchorsSummary,
+    /// `mirror[i]` is the point `i` becomes when the face is mirrored left-right; `null` when
+    /// the scheme does not say.
+    pub mirror: Option<Vec<usize>>,
+    /// Points on the face outline (ibug68's jaw), which 2D-style annotations move with the
+    /// silhouette.
+    pub contour: Vec<usize>,
+}
+
+impl From<SchemeDetail> for SchemeResponse {
+    fn from(d: SchemeDetail) -> Self {
+        let a = d.anchors;
+        SchemeResponse {
+            model: d.model,
+            model_version: d.model_version,
+            scheme: d.name,
+            points: d.points,
+            mean: d.mean,
+            anchors: AnchorsSummary {
+                eye_left: a.eye_left,
+                eye_right: a.eye_right,
+                nose_tip: a.nose_tip,
+                mouth_left: a.mouth_left,
+                mouth_right: a.mouth_right,
+            },
+            mirror: d.mirror,
+            contour: d.contour,
+        }
+    }
 }
 
 /// The answer of an activation: the model now served.

@@ -381,6 +381,188 @@ async fn models_health_metrics_and_openapi() {
     );
 }
 
+/// `[x, y, z]` rows of a JSON array.
+fn points3(v: &Value) -> Vec<[f64; 3]> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|p| std::array::from_fn(|k| p[k].as_f64().unwrap()))
+        .collect()
+}
+
+/// Pose_Para's `R = Rx(pitch) · Ry(yaw) · Rz(roll)` written out from ../shared/DESIGN.md's
+/// matrices, and the weak-perspective image mapping `[u, -v] = s (R X)[0:2] + t`: what a
+/// client (the demo page) does with a scheme's mean shape, independent of the core's code.
+fn project_by_hand(x: [f64; 3], (yaw, pitch, roll): (f64, f64, f64)) -> [f64; 2] {
+    let (sp, cp) = pitch.to_radians().sin_cos();
+    let (sy, cy) = yaw.to_radians().sin_cos();
+    let (sr, cr) = roll.to_radians().sin_cos();
+    let rx = [[1.0, 0.0, 0.0], [0.0, cp, sp], [0.0, -sp, cp]];
+    let ry = [[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]];
+    let rz = [[cr, sr, 0.0], [-sr, cr, 0.0], [0.0, 0.0, 1.0]];
+    let mul = |a: [[f64; 3]; 3], b: [[f64; 3]; 3]| -> [[f64; 3]; 3] {
+        std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+    };
+    let r = mul(mul(rx, ry), rz);
+    let rot = |i: usize| (0..3).map(|k| r[i][k] * x[k]).sum::<f64>();
+    let (s, t) = (2.5, [320.0, -240.0]);
+    [s * rot(0) + t[0], -(s * rot(1) + t[1])]
+}
+
+#[tokio::test]
+async fn schemes_give_the_mean_shape_that_projects_to_a_known_pose() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let get = |path: String| c.get(server.url(&path)).send();
+    let models: Value = get("/v1/models".into())
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let mut schemes = 0;
+    for s in models["models"][0]["schemes"].as_array().unwrap() {
+        let name = s["name"].as_str().unwrap();
+        let r = get(format!("/v1/models/default/schemes/{name}"))
+            .await
+            .unwrap();
+        assert_eq!(r.status(), StatusCode::OK, "{name}");
+        let v: Value = r.json().await.unwrap();
+        assert_eq!(v["scheme"], name);
+        assert_eq!(v["model"], "default");
+        assert_eq!(v["model_version"], models["models"][0]["version"]);
+        let n = s["points"].as_u64().unwrap() as usize;
+        assert_eq!(v["points"].as_array().unwrap().len(), n, "{name}");
+        let mean = points3(&v["mean"]);
+        assert_eq!(mean.len(), n, "{name}");
+        // The model frame: the subject's left eye (image-right) at larger x, the eyes above
+        // the mouth, and (where the scheme has one) the nose tip nearest the camera.
+        let at = |key: &str| -> Option<[f64; 3]> {
+            let idx: Vec<usize> = v["anchors"][key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|i| i.as_u64().unwrap() as usize)
+                .collect();
+            (!idx.is_empty()).then(|| {
+                std::array::from_fn(|k| {
+                    idx.iter().map(|&i| mean[i][k]).sum::<f64>() / idx.len() as f64
+                })
+            })
+        };
+        let (left, right) = (at("eye_left").unwrap(), at("eye_right").unwrap());
+        assert!(
+            left[0] < -20.0 && right[0] > 20.0,
+            "{name}: eyes at {left:?} {right:?}"
+        );
+        if let (Some(nose), Some(mouth)) = (at("nose_tip"), at("mouth_left")) {
+            assert!(mouth[1] < left[1], "{name}: the mouth below the eyes");
+            let deepest = mean.iter().map(|p| p[2]).fold(f64::MIN, f64::max);
+            assert!(
+                nose[2] > deepest - 5.0,
+                "{name}: nose tip z {} of {deepest}",
+                nose[2]
+            );
+        }
+        // Projected by hand at a known pose, the mean shape comes back as that pose.
+        for pose in [(30.0, -10.0, 5.0), (-50.0, 15.0, -8.0)] {
+            let landmarks: Vec<[f64; 2]> = mean.iter().map(|&x| project_by_hand(x, pose)).collect();
+            let (status, answer) = post(
+                &c,
+                &server.url("/v1/pose"),
+                &json!({"landmarks": landmarks, "scheme": name, "method": "fit"}),
+            )
+            .await;
+            assert_eq!(status, StatusCode::OK, "{name}: {answer}");
+            assert_pose(&answer, pose, 0.5);
+        }
+        schemes += 1;
+    }
+    assert!(schemes >= 4, "{models}");
+    // ibug68's five anchors are the five-point scheme's points: one mean shape for both.
+    let ibug: Value = get("/v1/models/default/schemes/ibug68".into())
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let five: Value = get("/v1/models/default/schemes/five".into())
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let (ibug_mean, five_mean) = (points3(&ibug["mean"]), points3(&five["mean"]));
+    assert_eq!(ibug["anchors"]["eye_left"], json!([36, 37, 38, 39, 40, 41]));
+    for (k, key) in [
+        "eye_left",
+        "eye_right",
+        "nose_tip",
+        "mouth_left",
+        "mouth_right",
+    ]
+    .iter()
+    .enumerate()
+    {
+        let idx = ibug["anchors"][key].as_array().unwrap();
+        for d in 0..3 {
+            let m = idx
+                .iter()
+                .map(|i| ibug_mean[i.as_u64().unwrap() as usize][d])
+                .sum::<f64>()
+                / idx.len() as f64;
+            assert!(
+                (m - five_mean[k][d]).abs() < 1e-9,
+                "{key}[{d}]: {m} vs {}",
+                five_mean[k][d]
+            );
+        }
+    }
+    assert_eq!(ibug["contour"].as_array().unwrap().len(), 17);
+    assert_eq!(ibug["mirror"][36], 45);
+
+    // Unknown schemes and models are 404 with what there is; an overlong name is 422.
+    let r = get("/v1/models/default/schemes/mediapipe9".into())
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    let v: Value = r.json().await.unwrap();
+    assert_eq!(v["error"]["code"], "not_found");
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("model \"default\" serves no scheme \"mediapipe9\"; it serves ibug68, inner51, five, dlib5"),
+        "{v}"
+    );
+    let r = get("/v1/models/nope/schemes/five".into()).await.unwrap();
+    assert_eq!(r.status(), StatusCode::NOT_FOUND);
+    let v: Value = r.json().await.unwrap();
+    assert!(
+        v["error"]["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("unknown model \"nope\""),
+        "{v}"
+    );
+    let r = get(format!("/v1/models/default/schemes/{}", "x".repeat(65)))
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::UNPROCESSABLE_ENTITY);
+    let r = get("/v1/models/default/schemes/%C0".into()).await.unwrap();
+    assert_eq!(r.status(), StatusCode::BAD_REQUEST);
+    assert_eq!(
+        r.json::<Value>().await.unwrap()["error"]["code"],
+        "malformed_path"
+    );
+    let r = c
+        .post(server.url("/v1/models/default/schemes/five"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::METHOD_NOT_ALLOWED);
+}
+
 /// Three landmarks present out of 68.
 fn few_points() -> Vec<Value> {
     let mut v = vec![Value::Null; 68];
@@ -1038,6 +1220,7 @@ async fn cors_opens_every_v1_route_to_listed_origins_only() {
     for path in [
         "/v1/models",
         "/v1/models/default",
+        "/v1/models/default/schemes/five",
         "/v1/models/default/versions",
         "/v1/models/jobs/j-nope",
     ] {
@@ -1137,6 +1320,7 @@ async fn cors_any_origin_opens_the_routes_without_the_admin_token() {
         ("/v1/pose", "POST"),
         ("/v1/pose:batch", "POST"),
         ("/v1/models", "GET"),
+        ("/v1/models/default/schemes/ibug68", "GET"),
         ("/v1/models/default/versions", "GET"),
         ("/v1/models/jobs/j-nope", "GET"),
     ] {
