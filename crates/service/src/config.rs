@@ -134,6 +134,33 @@ pub struct ServeArgs {
     /// that need no admin token. Default: none (no CORS headers).
     #[arg(long, env = "FACEPOSE_CORS_ORIGINS")]
     pub cors_origins: Option<String>,
+    /// Serve the demo page at /demo: a pose explorer and a landmark box over this server's
+    /// own /v1 routes, for developers (one static page, no external assets; docs/API.md).
+    /// `--demo false` (or FACEPOSE_DEMO=false) leaves /demo a 404, e.g. on a public API port.
+    #[arg(
+        long,
+        env = "FACEPOSE_DEMO",
+        default_value_t = true,
+        action = clap::ArgAction::Set,
+        value_name = "true|false",
+        value_parser = on_off()
+    )]
+    pub demo: bool,
+}
+
+/// A switch's values, each with its help (`facepose serve --help` lists them): `true` or
+/// `false`, also as `on`/`off`, `yes`/`no`, `1`/`0`.
+fn on_off() -> impl clap::builder::TypedValueParser<Value = bool> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+    PossibleValuesParser::new([
+        PossibleValue::new("true")
+            .help("on (also: on, yes, 1)")
+            .aliases(["on", "yes", "1"]),
+        PossibleValue::new("false")
+            .help("off (also: off, no, 0)")
+            .aliases(["off", "no", "0"]),
+    ])
+    .map(|v| matches!(v.as_str(), "true" | "on" | "yes" | "1"))
 }
 
 /// The environment variable holding the admin token (read directly, never a flag: a flag
@@ -159,6 +186,8 @@ pub struct Config {
     pub keep_inactive_versions: Option<usize>,
     /// `None`: CORS off.
     pub cors_origins: Option<CorsOrigins>,
+    /// Whether `/demo` serves the demo page.
+    pub demo: bool,
 }
 
 impl Config {
@@ -347,6 +376,7 @@ impl ServeArgs {
             addr,
             keep_inactive_versions,
             cors_origins,
+            demo: self.demo,
             models: self.models.clone(),
             limits,
             drain_timeout: parse_duration(&self.drain_timeout)
@@ -530,6 +560,29 @@ mod tests {
             let err = parse(args).unwrap_err().to_string();
             assert!(err.starts_with(want), "{args:?}: {err}");
         }
+    }
+
+    #[test]
+    fn the_demo_page_is_on_unless_turned_off() {
+        let demo = |args: &[&str]| {
+            let mut v = vec!["facepose"];
+            v.extend_from_slice(args);
+            Cli::try_parse_from(v).map(|c| c.serve.demo)
+        };
+        if std::env::var_os("FACEPOSE_DEMO").is_none() {
+            assert!(demo(&[]).unwrap());
+        }
+        for (value, want) in [
+            ("false", false),
+            ("true", true),
+            ("off", false),
+            ("on", true),
+            ("0", false),
+            ("yes", true),
+        ] {
+            assert_eq!(demo(&["--demo", value]).unwrap(), want, "{value}");
+        }
+        assert!(demo(&["--demo", "maybe"]).is_err());
     }
 
     #[test]

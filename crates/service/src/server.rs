@@ -152,8 +152,13 @@ pub async fn serve(
 /// The routers of `app`: gRPC from an empty axum router (tonic's default fallback would answer
 /// unknown REST paths with gRPC errors), merged with the HTTP API, one fallback for both, the
 /// request observer around everything. With `cors` (`--cors-origins`), the HTTP routes answer
-/// browsers of those origins (`http::cors`); the gRPC routes never see that layer.
-pub fn routers(app: &Arc<App>, cors: Option<&CorsOrigins>) -> Result<Router, ServeError> {
+/// browsers of those origins (`http::cors`); the gRPC routes never see that layer. With
+/// `pages`, the demo page joins the HTTP routes (`--demo`, `http::demo`).
+pub fn routers(
+    app: &Arc<App>,
+    cors: Option<&CorsOrigins>,
+    pages: Pages,
+) -> Result<Router, ServeError> {
     let max_body = app.limits.max_body;
     let pose = proto::pose_service_server::PoseServiceServer::new(grpc::PoseApi::new(app.clone()))
         .max_decoding_message_size(max_body);
@@ -192,6 +197,10 @@ pub fn routers(app: &Arc<App>, cors: Option<&CorsOrigins>) -> Result<Router, Ser
         Some(origins) => http::cors::layer(api, http::cors::CorsPolicy::new(&doc, origins)),
         None => api,
     };
+    let api = match pages {
+        Pages::Demo => api.merge(http::demo::routes()),
+        Pages::None => api,
+    };
     Ok(api
         .merge(grpc)
         .fallback(http::fallback)
@@ -201,6 +210,15 @@ pub fn routers(app: &Arc<App>, cors: Option<&CorsOrigins>) -> Result<Router, Ser
         )))
 }
 
+/// The web pages a server serves beside its API.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pages {
+    /// The demo page at `/demo` (`--demo true`, the default).
+    Demo,
+    /// None (`--demo false`).
+    None,
+}
+
 async fn serve_app(
     app: &Arc<App>,
     cfg: &Config,
@@ -208,7 +226,8 @@ async fn serve_app(
     shutdown: impl Future<Output = ()> + Send + 'static,
     started: Instant,
 ) -> Result<(), ServeError> {
-    let router = routers(app, cfg.cors_origins.as_ref())?;
+    let pages = if cfg.demo { Pages::Demo } else { Pages::None };
+    let router = routers(app, cfg.cors_origins.as_ref(), pages)?;
     let addr = listener.local_addr()?;
     app.lifecycle.serving();
     tracing::info!(

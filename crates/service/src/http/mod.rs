@@ -8,12 +8,15 @@
 //!   deletion.
 //! - [`retrain`]: `POST /v1/models` (an upload becomes a job), the jobs.
 //! - [`ops`]: `/healthz`, `/readyz`, `/metrics`, `/openapi.json`.
+//! - [`demo`]: the demo page at `/demo` (`--demo`), outside the document: a page, not an
+//!   operation.
 //! - [`body`], [`request_json`]: reading request bodies; [`middleware`]: limits, request ids,
 //!   metrics and logs; [`cors`]: the answers to browsers of other origins (`--cors-origins`).
 
 pub mod body;
 pub mod body_guard;
 pub mod cors;
+pub mod demo;
 pub mod error;
 pub mod middleware;
 pub mod models;
