@@ -1,0 +1,88 @@
+#!/usr/bin/env bash
+# The demo page and the API from a browser: headless Chromium (Debian's `chromium`) driven by
+# Playwright (scripts/browser_test.py): /demo loads under its CSP with no console error and no
+# request to another origin; the pose explorer at several poses shows the API's own answer, near
+# the truth; the paste box with five-point, ibug68 (and MediaPipe) faces; a page of another
+# origin calling POST /v1/pose with fetch(), allowed by --cors-origins or refused.
+#
+#   scripts/browser-test.sh [--screenshot docs/demo.png]
+#
+# Installs what it needs: Debian's chromium (apt-get, as root) when /usr/bin/chromium is
+# missing, and a pinned Playwright in the venv target/browser-test-venv (Playwright's own
+# browser download is not used). The binary: $FACEPOSE_BIN, else a release build. Prints one
+# line per check and "N passed, M failed, K skipped"; exits 1 on a failure, and 3, saying
+# NOT RUN, when Chromium or Playwright cannot be installed. --screenshot saves the explorer
+# (1440 px wide, reduced to 192 colours with Pillow, installed for it) to the file given.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PLAYWRIGHT_VERSION=1.65.2
+PILLOW_VERSION=13.0.0
+VENV=target/browser-test-venv
+CHROMIUM=${CHROMIUM:-/usr/bin/chromium}
+SCREENSHOT=""
+case "${1:-}" in
+--screenshot) SCREENSHOT=${2:?--screenshot FILE} ;;
+"") ;;
+*) echo "usage: $0 [--screenshot FILE]" >&2; exit 2 ;;
+esac
+
+not_run() {
+    echo "browser tests NOT RUN: $*"
+    exit 3
+}
+
+if [ ! -x "$CHROMIUM" ]; then
+    command -v apt-get >/dev/null && [ "$(id -u)" = 0 ] ||
+        not_run "no $CHROMIUM, and no apt-get as root to install Debian's chromium"
+    echo "== installing Debian's chromium"
+    (apt-get update -qq -o Acquire::Retries=3 &&
+        DEBIAN_FRONTEND=noninteractive timeout 600 apt-get install -y -qq -o Acquire::Retries=3 \
+            --no-install-recommends chromium fonts-dejavu-core >/dev/null) ||
+        not_run "apt-get install chromium failed"
+    [ -x "$CHROMIUM" ] || not_run "chromium installed, but not at $CHROMIUM"
+fi
+"$CHROMIUM" --version 2>/dev/null || not_run "$CHROMIUM does not run"
+
+installed() {
+    "$VENV/bin/python" -c "import importlib.metadata as m; print(m.version('$1'))" 2>/dev/null || true
+}
+want=("playwright==$PLAYWRIGHT_VERSION")
+[ -n "$SCREENSHOT" ] && want+=("pillow==$PILLOW_VERSION")
+if [ "$(installed playwright)" != "$PLAYWRIGHT_VERSION" ] ||
+    { [ -n "$SCREENSHOT" ] && [ "$(installed pillow)" != "$PILLOW_VERSION" ]; }; then
+    echo "== installing ${want[*]} in $VENV"
+    { [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"; } || not_run "python3 -m venv failed"
+    timeout 600 "$VENV/bin/pip" install -q --disable-pip-version-check --retries 5 "${want[@]}" ||
+        not_run "pip install ${want[*]} failed"
+fi
+
+if [ -n "${FACEPOSE_BIN:-}" ]; then
+    BIN=$FACEPOSE_BIN
+else
+    echo "== building (release)"
+    cargo build --release --locked --bin facepose 2>&1 | tail -1
+    BIN=target/release/facepose
+fi
+[ -x "$BIN" ] || { echo "no binary at $BIN"; exit 1; }
+
+args=("$BIN" --chromium "$CHROMIUM")
+SHOT_RAW=""
+if [ -n "$SCREENSHOT" ]; then
+    SHOT_RAW=$(mktemp --suffix .png)
+    args+=(--screenshot "$SHOT_RAW")
+fi
+trap '[ -z "$SHOT_RAW" ] || rm -f "$SHOT_RAW"' EXIT
+echo "== browser tests ($("$BIN" --version 2>/dev/null || echo facepose), $("$CHROMIUM" --version 2>/dev/null), playwright $PLAYWRIGHT_VERSION)"
+status=0
+timeout 600 "$VENV/bin/python" scripts/browser_test.py "${args[@]}" || status=$?
+if [ -n "$SCREENSHOT" ] && [ -s "$SHOT_RAW" ]; then
+    "$VENV/bin/python" - "$SHOT_RAW" "$SCREENSHOT" <<'END'
+import sys
+from PIL import Image
+image = Image.open(sys.argv[1]).convert("RGB")
+image.quantize(colors=192, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(sys.argv[2], optimize=True)
+END
+    echo "screenshot: $SCREENSHOT ($(stat -c %s "$SCREENSHOT") bytes)"
+fi
+exit "$status"
