@@ -71,20 +71,25 @@ pub struct SchemeDetail {
 /// The scheme `scheme` of the served model `m`, or `UnknownScheme` naming the ones it serves.
 pub fn scheme_detail(m: &ServedModel, scheme: &str) -> Result<SchemeDetail, ServiceError> {
     ServiceError::check_name_length("scheme", scheme)?;
-    let Some(subset) = m.model.subsets.iter().find(|s| s.scheme.name == scheme) else {
-        return Err(ServiceError::UnknownScheme {
-            model: m.name.clone(),
-            scheme: scheme.to_string(),
-            served: m.schemes().map(|(name, _)| name.to_string()).collect(),
-        });
+    // A subset of the model's own points, or a scheme of its face mesh (MediaPipe's).
+    let subset = m.model.subsets.iter().find(|s| s.scheme.name == scheme);
+    let (s, mean) = match (subset, m.model.mesh_scheme(scheme)) {
+        (Some(subset), _) => (&subset.scheme, &subset.mean),
+        (None, Some((_, mesh))) => (&mesh.scheme, &mesh.points),
+        (None, None) => {
+            return Err(ServiceError::UnknownScheme {
+                model: m.name.clone(),
+                scheme: scheme.to_string(),
+                served: m.schemes().map(|(name, _)| name.to_string()).collect(),
+            });
+        }
     };
-    let s = &subset.scheme;
     Ok(SchemeDetail {
         model: m.name.clone(),
         model_version: m.version.clone(),
         name: s.name.clone(),
         points: s.points.clone(),
-        mean: subset.mean.iter().map(|p| [p.x, p.y, p.z]).collect(),
+        mean: mean.iter().map(|p| [p.x, p.y, p.z]).collect(),
         anchors: s.anchors.clone(),
         mirror: s.mirror.clone(),
         contour: s.contour.clone(),
