@@ -137,7 +137,7 @@ pub struct Estimate {
     /// close up in profile: what says whether the landmarks look like a face in their scheme.
     ///
     /// For the paper's methods, whose pose can be poor where the landmarks are fine, it is the
-    /// rigid fit's.
+    /// rigid fit's (NaN when the rigid fit cannot answer, and then nothing is checked).
     pub misfit: f64,
     /// What the caller should know about this answer.
     pub warnings: Vec<Warning>,
@@ -400,9 +400,13 @@ fn estimate_in_subset(
     );
     let (residual, mut misfit) = residual(&subset.mean, landmarks, &rotation, eyes.0, eyes.1);
     if matches!(method, Method::Regression | Method::Geometry) {
+        // Where the rigid fit cannot answer (too few points for it), there is no misfit to
+        // check: NaN passes the check.
         let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
-        let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
-        misfit = self::residual(&subset.mean, landmarks, &f.rotation, eyes.0, eyes.1).1;
+        misfit = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)
+            .map_or(f64::NAN, |f| {
+                self::residual(&subset.mean, landmarks, &f.rotation, eyes.0, eyes.1).1
+            });
     }
     Ok(Estimate {
         angles: EulerAngles::from_rotation(&rotation),
@@ -496,8 +500,10 @@ fn estimate_mesh(
     let (residual, mut misfit) =
         residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
     if matches!(method, Method::Regression | Method::Geometry) {
-        let f = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))?;
-        misfit = self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1;
+        misfit = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))
+            .map_or(f64::NAN, |f| {
+                self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
+            });
     }
     Ok(Estimate {
         angles: EulerAngles::from_rotation(&rotation),
