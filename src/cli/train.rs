@@ -200,13 +200,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
     };
     let morphable = match &a.morphable {
         Some(path) => {
-            let bytes =
-                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            sources.push(SourceFile {
-                path: path.display().to_string(),
-                sha256: sha256_hex(&bytes),
-                shapes: 0,
-            });
+            sources.push(source_file(path)?);
             Some(load_morphable_model(path)?)
         }
         None => None,
@@ -228,13 +222,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
             )
             .into());
         }
-        let bytes =
-            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-        sources.push(SourceFile {
-            path: path.display().to_string(),
-            sha256: sha256_hex(&bytes),
-            shapes: 0,
-        });
+        sources.push(source_file(path)?);
         let mesh = load_canonical_mesh(path)?;
         model.attach_mesh(&MeshSource {
             vertices: mesh.vertices,
@@ -284,6 +272,16 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         start.elapsed()
     ));
     Ok(())
+}
+
+/// A source of no shapes (a morphable model, a mesh) for the provenance: its path and SHA-256.
+fn source_file(path: &std::path::Path) -> Result<SourceFile, CliError> {
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    Ok(SourceFile {
+        path: path.display().to_string(),
+        sha256: sha256_hex(&bytes),
+        shapes: 0,
+    })
 }
 
 /// The command line as the bundle records it: without --out (a rebuild elsewhere gives the

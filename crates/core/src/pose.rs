@@ -16,7 +16,7 @@ use crate::estimate::perspective::{Intrinsics, refine_perspective};
 use crate::geometry::EulerAngles;
 use crate::geometry::image_to_plane;
 use crate::model::{FaceMesh, MeshScheme, PoseModel, Subset, SubsetMap};
-use crate::shape::Shape2;
+use crate::shape::{Scheme, Shape2};
 
 /// The estimators.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
@@ -290,16 +290,7 @@ fn estimate_in_subset(
 ) -> Result<Estimate> {
     let method = opts.method;
     let subset = model.subset(scheme)?;
-    if landmarks.len() != subset.scheme.len() {
-        return Err(Error::PointCount {
-            what: format!(
-                "landmarks for scheme {scheme}{}",
-                model.count_hint(landmarks.len())
-            ),
-            expected: subset.scheme.len(),
-            got: landmarks.len(),
-        });
-    }
+    check_count(model, &subset.scheme, landmarks)?;
     let present = landmarks.n_present();
     let method = method.resolve(model, subset, present);
     let map = &subset.map;
@@ -420,6 +411,23 @@ fn estimate_in_subset(
     })
 }
 
+/// Fails unless `landmarks` has `scheme`'s number of points, saying which schemes have the
+/// number it has.
+fn check_count(model: &PoseModel, scheme: &Scheme, landmarks: &Shape2) -> Result<()> {
+    if landmarks.len() == scheme.len() {
+        return Ok(());
+    }
+    Err(Error::PointCount {
+        what: format!(
+            "landmarks for scheme {}{}",
+            scheme.name,
+            model.count_hint(landmarks.len())
+        ),
+        expected: scheme.len(),
+        got: landmarks.len(),
+    })
+}
+
 /// The fit methods' options for a landmark style.
 fn fit_options(style: LandmarkStyle) -> FitOptions {
     FitOptions {
@@ -441,17 +449,7 @@ fn estimate_mesh(
     landmarks: &Shape2,
     opts: &EstimateOptions,
 ) -> Result<Estimate> {
-    let name = &ms.scheme.name;
-    if landmarks.len() != ms.scheme.len() {
-        return Err(Error::PointCount {
-            what: format!(
-                "landmarks for scheme {name}{}",
-                model.count_hint(landmarks.len())
-            ),
-            expected: ms.scheme.len(),
-            got: landmarks.len(),
-        });
-    }
+    check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
     // `auto` fits the mesh: on the mesh at known poses it is exact where the shape fit through
     // the correspondence is 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md),
