@@ -10,7 +10,11 @@
 //!
 //! The face is the one of benches/estimate.rs: the default model's mean at yaw 25°, pitch -10°,
 //! roll 5° with 1.2 px of landmark noise; the JSON body is that face's landmarks at full precision
-//! (or the body in the file given after CALLS, to compare parsers on the same text).
+//! (or the body in the file given after CALLS, to compare parsers on the same text). The
+//! `…-dev-fitted` and `…-dev-reannotated` entries estimate instead the AFLW2000-3D dev faces
+//! (every |angle| <= 99°, as benches/real_faces.rs) in turn, one a call: with CALLS a multiple
+//! of their count, the mean over the faces (they need the shared data: FACEPOSE_DATA, else
+//! ../shared/data).
 
 use facepose_app::pose::{FaceSpec, estimate_face};
 use facepose_app::registry::load_models;
@@ -20,6 +24,7 @@ use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
+use facepose_files::data::{data_dir, load_aflw};
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::landmark_messages;
 use facepose_service::http::body_guard::{BodyGuard, BodyKind};
@@ -32,7 +37,7 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 
 /// What can be counted.
-const ENTRIES: [&str; 12] = [
+const ENTRIES: [&str; 16] = [
     "none",
     "fit",
     "fit-shape",
@@ -45,7 +50,28 @@ const ENTRIES: [&str; 12] = [
     "grpc-decode-xy",
     "guard-pose-body",
     "guard-grpc-landmarks",
+    "estimate-auto-dev-fitted",
+    "estimate-auto-dev-reannotated",
+    "estimate-fit-dev-fitted",
+    "estimate-fit-dev-reannotated",
 ];
+
+/// The AFLW2000-3D dev faces of `set` (`fitted` or `reannotated`), every |angle| <= 99°.
+fn dev_faces(set: &str) -> Vec<Shape2> {
+    let path = data_dir().join("aflw2000/aflw2000_dev.jsonl");
+    let faces = load_aflw(&path).unwrap_or_else(|e| panic!("{e}"));
+    faces
+        .iter()
+        .filter(|f| f.within_99)
+        .map(|f| {
+            let pts = match set {
+                "fitted" => &f.landmarks_fitted,
+                _ => &f.landmarks_reannotated,
+            };
+            Shape2::full(pts.iter().map(|p| Vector2::new(p[0], p[1])).collect()).unwrap()
+        })
+        .collect()
+}
 
 fn main() {
     let usage = || {
@@ -134,7 +160,11 @@ fn main() {
     framed.extend_from_slice(&with_messages);
     // Warm the regression's per-pattern cache, as a service is after its first query.
     let _ = estimate(&model, "ibug68", &lm, Method::Regression);
-    for _ in 0..calls {
+    let dev = match what.rsplit_once("-dev-") {
+        Some((_, set)) => dev_faces(set),
+        None => Vec::new(),
+    };
+    for call in 0..calls {
         match what.as_str() {
             "fit" => drop(black_box(
                 fit_rigid(black_box(&model.mean), black_box(&lm), &[], None, rigid).unwrap(),
@@ -171,6 +201,17 @@ fn main() {
             "guard-grpc-landmarks" => {
                 let mut g = FrameGuard::new(Rpc::Estimate, 1000).scanning_from(0);
                 drop(black_box(g.feed(black_box(&framed))));
+            }
+            dev_entry if dev_entry.contains("-dev-") => {
+                let method = if dev_entry.starts_with("estimate-auto") {
+                    Method::Auto
+                } else {
+                    Method::Fit
+                };
+                let face = &dev[call % dev.len()];
+                drop(black_box(
+                    estimate(&model, "ibug68", black_box(face), method).unwrap(),
+                ));
             }
             _ => {}
         }
