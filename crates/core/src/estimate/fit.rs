@@ -212,24 +212,6 @@ fn nearer_frontal_branch(
     }
 }
 
-/// Root of the weighted mean squared distance of the model points to their weighted centroid.
-pub(crate) fn model_size(model: &[Vector3<f64>], w: &[f64]) -> f64 {
-    let sw: f64 = w.iter().sum();
-    let c = model
-        .iter()
-        .zip(w)
-        .map(|(x, &w)| x * w)
-        .sum::<Vector3<f64>>()
-        / sw;
-    (model
-        .iter()
-        .zip(w)
-        .map(|(x, &w)| w * (x - c).norm_squared())
-        .sum::<f64>()
-        / sw)
-        .sqrt()
-}
-
 /// Weighted, centred first and second moments of the model points and the landmarks: all the
 /// least-squares cost of a weak-perspective camera depends on, so that the iterations of a fit
 /// cost O(1) after one pass over the points.
@@ -429,25 +411,16 @@ fn squared_residuals(
     );
 }
 
-/// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored). Leaves the
-/// weights alone and returns false when no residual exceeds 2.5 σ (nothing stands out).
-pub(crate) fn tukey_reweight(
-    model: &[Vector3<f64>],
-    y: &[Vector2<f64>],
+/// Tukey biweight on the residual norms (c = 4.685 σ, σ = 1.4826 · median, floored), from the
+/// squared residuals `res2` (`scratch` holds the ones in use for the median). Leaves the
+/// weights alone and returns false when no residual exceeds 2.5 σ (nothing stands out). Works
+/// on squares throughout: one square root, for the median.
+pub(crate) fn tukey_weights(
+    res2: &[f64],
     w: &mut [f64],
-    r: &Rotation3<f64>,
-    s: f64,
-    t: &Vector2<f64>,
     floor: f64,
+    scratch: &mut Vec<f64>,
 ) -> bool {
-    let mut res2 = Vec::with_capacity(model.len());
-    squared_residuals(model, y, r, s, t, &mut res2);
-    tukey_weights(&res2, w, floor, &mut Vec::with_capacity(model.len()))
-}
-
-/// [`tukey_reweight`] on squared residuals already computed (`scratch` holds the ones in use
-/// for the median). Works on squares throughout: one square root, for the median.
-fn tukey_weights(res2: &[f64], w: &mut [f64], floor: f64, scratch: &mut Vec<f64>) -> bool {
     // σ is at least `floor`: when no residual in use exceeds 2.5 · floor, none exceeds 2.5 σ,
     // and the median is not needed (the common case of clean landmarks).
     let floor_limit = (2.5 * floor).powi(2);
