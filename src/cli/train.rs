@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
+use facepose_core::eval::uncertainty::calibrate_on_faces;
 use facepose_core::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
 use facepose_core::model::{
     BasisSource, MeshSource, RegressionParams, TrainOptions, train_from_population,
@@ -12,7 +13,7 @@ use facepose_core::model::{
 use facepose_core::sfm::{SfmOptions, reconstruct};
 use facepose_core::shape::{Scheme, Shape2};
 use facepose_files::data::{
-    load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
+    load_aflw, load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
 };
 use facepose_files::store::write_bundle_dir;
 use nalgebra::Vector3;
@@ -71,6 +72,12 @@ pub struct TrainArgs {
     /// file's ibug68 correspondence (an ibug68 model only).
     #[arg(long, value_name = "FILE")]
     mesh: Option<PathBuf>,
+    /// Faces with ground-truth pose (AFLW2000-3D JSON Lines, e.g.
+    /// ../shared/data/aflw2000/aflw2000_dev.jsonl): the bundle then stores the uncertainty's
+    /// calibration fitted on them, and answers carry a standard deviation and a 90% interval per
+    /// angle (an ibug68 model only: the faces' landmarks are ibug68).
+    #[arg(long, value_name = "FILE")]
+    calibrate: Option<PathBuf>,
     /// Model name (default: the --out directory's name).
     #[arg(long)]
     name: Option<String>,
@@ -231,6 +238,27 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         })?;
         progress.stage("aligned the face mesh and computed its visibility");
     }
+    if let Some(path) = &a.calibrate {
+        if scheme.name != "ibug68" {
+            return Err(format!(
+                "--calibrate needs an ibug68 model (the faces' landmarks are ibug68), this one is {}",
+                scheme.name
+            )
+            .into());
+        }
+        progress.stage(format_args!(
+            "calibrating the uncertainty on {}",
+            path.display()
+        ));
+        sources.push(source_file(path)?);
+        let faces = load_aflw(path)?;
+        let name = path.file_name().map_or_else(
+            || path.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        model.calibration = Some(calibrate_on_faces(&model, &faces, &name)?);
+        progress.stage("calibrated the uncertainty");
+    }
     let created = match a.created {
         Some(c) => c,
         None => time::OffsetDateTime::now_utc()
@@ -260,6 +288,10 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         ) + if a.mesh.is_some() {
             "; face mesh: MediaPipe's canonical face mesh (Apache-2.0), aligned to the mean by \
              its ibug68 correspondence (MIT, PeizhiYan/Mediapipe_2_Dlib_Landmarks)"
+        } else {
+            ""
+        } + if a.calibrate.is_some() {
+            "; uncertainty calibrated on the last source's faces (AFLW2000-3D; research use)"
         } else {
             ""
         },

@@ -93,8 +93,8 @@ fn the_default_model_rebuilds_byte_for_byte() {
 }
 
 /// The default bundle as schema 1 wrote it: no stored visibility (whose loading runs HPR), and
-/// without the `dlib5` subset and MediaPipe's face mesh, which came later (with the mesh's
-/// source and command-line option taken out of the provenance).
+/// without the `dlib5` subset, MediaPipe's face mesh and the uncertainty's calibration, which
+/// came later (with their sources and command-line options taken out of the provenance).
 fn as_schema_1() -> Bundle {
     let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
     b.schema_version = 1;
@@ -102,13 +102,21 @@ fn as_schema_1() -> Bundle {
     b.training.subsets.retain(|s| s != "dlib5");
     b.regressions.retain(|r| r.scheme != "dlib5");
     b.mesh = None;
+    b.calibration = None;
     let p = &mut b.provenance;
-    p.sources
-        .retain(|s| !s.path.ends_with("canonical_face_468.json"));
-    p.command = p.command.replace(
-        " --mesh ../shared/data/mediapipe/canonical_face_468.json",
-        "",
-    );
+    p.sources.retain(|s| {
+        !(s.path.ends_with("canonical_face_468.json") || s.path.ends_with("aflw2000_dev.jsonl"))
+    });
+    p.command = p
+        .command
+        .replace(
+            " --mesh ../shared/data/mediapipe/canonical_face_468.json",
+            "",
+        )
+        .replace(
+            " --calibrate ../shared/data/aflw2000/aflw2000_dev.jsonl",
+            "",
+        );
     p.notes = p.notes.split("; face mesh:").next().unwrap().to_string();
     b.checksum = b.compute_checksum().unwrap();
     b

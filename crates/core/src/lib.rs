@@ -20,6 +20,7 @@ pub mod record;
 pub mod sfm;
 pub mod shape;
 pub mod synth;
+pub mod uncertainty;
 
 pub use error::{Error, Result};
 

@@ -17,6 +17,7 @@ use crate::geometry::EulerAngles;
 use crate::geometry::image_to_plane;
 use crate::model::{FaceMesh, MeshScheme, PoseModel, Subset, SubsetMap};
 use crate::shape::{Scheme, Shape2};
+use crate::uncertainty::{PointClass, RawSpread, Uncertainty, raw_spread};
 
 /// The estimators.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
@@ -141,6 +142,12 @@ pub struct Estimate {
     pub misfit: f64,
     /// What the caller should know about this answer.
     pub warnings: Vec<Warning>,
+    /// The raw spread of the angles from the fit's covariance at the estimate (`None` with
+    /// fewer than four usable points): what the calibration maps to [`Estimate::uncertainty`].
+    pub spread: Option<RawSpread>,
+    /// Calibrated standard deviation and 90% interval per angle, when the model has a
+    /// calibration for the method and the spread exists.
+    pub uncertainty: Option<Uncertainty>,
     /// The method that produced it (never `Auto`).
     pub method: Method,
     /// With camera intrinsics: the model origin in the camera frame, mm (x right, y up, z
@@ -371,6 +378,11 @@ fn estimate_in_subset(
         }
         Method::Auto => unreachable!("resolved above"),
     };
+    // The raw spread at the answer's rotation, of the shape the method stands on.
+    let spread = match &fitted {
+        Some((shape, f)) => raw_spread(shape, landmarks, Some(&f.weights), &rotation),
+        None => raw_spread(&subset.mean, landmarks, None, &rotation),
+    };
     let (rotation, translation) = match (&opts.camera, fitted) {
         (Some(k), Some((shape, f))) => {
             let p = refine_perspective(
@@ -399,16 +411,40 @@ fn estimate_in_subset(
                 self::residual(&subset.mean, landmarks, &f.rotation, eyes.0, eyes.1).1
             });
     }
+    let angles = EulerAngles::from_rotation(&rotation);
+    let spread = spread.map(|s| RawSpread { misfit, ..s });
     Ok(Estimate {
-        angles: EulerAngles::from_rotation(&rotation),
+        uncertainty: calibrated(
+            model,
+            method,
+            PointClass::of_scheme(&subset.scheme.name, subset.scheme.len()),
+            spread.as_ref(),
+            &angles,
+        ),
+        angles,
         rotation,
         visible,
         residual,
         misfit,
         warnings: vec![],
+        spread,
         method,
         translation,
     })
+}
+
+/// The calibrated uncertainty of an estimate, when the model has a calibration for it.
+fn calibrated(
+    model: &PoseModel,
+    method: Method,
+    points: PointClass,
+    spread: Option<&RawSpread>,
+    a: &EulerAngles,
+) -> Option<Uncertainty> {
+    model
+        .calibration
+        .as_ref()?
+        .uncertainty(method, points, spread?, [a.pitch, a.yaw, a.roll])
 }
 
 /// Fails unless `landmarks` has `scheme`'s number of points, saying which schemes have the
@@ -466,6 +502,10 @@ fn estimate_mesh(
             ),
         ));
     }
+    // Every method's spread is taken on the model's own points (the mesh landmarks' means),
+    // where the calibration was learned: the mesh's 468 points are not 468 independent
+    // measurements.
+    let proxy = mesh.to_model(&pose_lm, &model.scheme)?;
     let (rotation, translation) = match method {
         Method::Fit => {
             let f = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))?;
@@ -484,7 +524,6 @@ fn estimate_mesh(
             }
         }
         _ => {
-            let proxy = mesh.to_model(&pose_lm, &model.scheme)?;
             let e = estimate_in_subset(
                 model,
                 &model.scheme.name,
@@ -503,12 +542,17 @@ fn estimate_mesh(
                 self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
             });
     }
+    let spread =
+        raw_spread(&model.mean, &proxy, None, &rotation).map(|s| RawSpread { misfit, ..s });
+    let angles = EulerAngles::from_rotation(&rotation);
     Ok(Estimate {
-        angles: EulerAngles::from_rotation(&rotation),
+        uncertainty: calibrated(model, method, PointClass::Dense, spread.as_ref(), &angles),
+        angles,
         visible: ms.visible(mesh, &rotation),
         residual,
         misfit,
         warnings: vec![],
+        spread,
         rotation,
         method,
         translation,

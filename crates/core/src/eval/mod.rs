@@ -6,3 +6,4 @@ pub mod mesh;
 pub mod paper;
 pub mod plot;
 pub mod sfm_check;
+pub mod uncertainty;

@@ -29,6 +29,7 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::{PaperHpr, Triangulation};
 use crate::shape::Scheme;
 use crate::synth::AngleRange;
+use crate::uncertainty::Calibration;
 
 /// The `format` field of every bundle.
 pub const FORMAT: &str = "facepose-model";
@@ -169,6 +170,10 @@ pub struct Bundle {
     /// that their checksums still verify).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<MeshEntry>,
+    /// The uncertainty's calibration ([`crate::uncertainty::calibration`]); absent in bundles
+    /// without one (left out of the JSON, so their checksums stay as they were).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<Calibration>,
     pub checksum: String,
 }
 
@@ -262,6 +267,7 @@ impl Bundle {
             regressions,
             shape_basis,
             mesh,
+            calibration: model.calibration.clone(),
             checksum: String::new(),
         };
         bundle.checksum = bundle.compute_checksum()?;
@@ -488,6 +494,9 @@ impl Bundle {
             Some(m) => Some(m.decode(&self.scheme)?),
             None => None,
         };
+        if let Some(c) = &self.calibration {
+            c.validate().map_err(core("calibration"))?;
+        }
         Ok(PoseModel {
             scheme: self.scheme.clone(),
             mean,
@@ -497,6 +506,7 @@ impl Bundle {
             subsets,
             morph,
             mesh,
+            calibration: self.calibration.clone(),
         })
     }
 }

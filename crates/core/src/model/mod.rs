@@ -22,6 +22,7 @@ use crate::estimate::regression::RegressionModel;
 use crate::estimate::visibility_map::VisibilityMap;
 use crate::hpr::PaperHpr;
 use crate::shape::{Scheme, Shape2};
+use crate::uncertainty::Calibration;
 
 pub use mesh::{FaceMesh, MeshScheme, MeshSource};
 pub use train::{BasisSource, RegressionParams, TrainOptions, train, train_from_population};
@@ -115,6 +116,9 @@ pub struct PoseModel {
     /// MediaPipe's face mesh, aligned to the mean: the `mediapipe468` and `mediapipe478`
     /// schemes ([`mesh`]).
     pub mesh: Option<FaceMesh>,
+    /// The map from an estimate's raw spread to calibrated standard deviations and 90%
+    /// intervals ([`crate::uncertainty::calibration`]); without it answers carry none.
+    pub calibration: Option<Calibration>,
 }
 
 impl PoseModel {

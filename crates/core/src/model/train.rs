@@ -205,6 +205,7 @@ pub fn train(
         subsets,
         morph,
         mesh: None,
+        calibration: None,
     })
 }
 
