@@ -6,4 +6,5 @@ pub mod mesh;
 pub mod paper;
 pub mod plot;
 pub mod sfm_check;
+pub mod tracking;
 pub mod uncertainty;

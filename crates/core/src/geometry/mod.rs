@@ -4,6 +4,7 @@
 pub mod convention;
 pub mod procrustes;
 pub mod projection;
+pub mod rotation_kalman;
 pub mod smoothing;
 
 pub use convention::{

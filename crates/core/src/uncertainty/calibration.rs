@@ -15,7 +15,7 @@
 //! [`calibrate`] (`facepose train --calibrate`); `facepose eval --protocol real` measures it by
 //! cross-validation ([`crate::eval::uncertainty`]).
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector};
 
 type Vector = SVector<f64, N_FEATURES>;
 type Matrix = SMatrix<f64, N_FEATURES, N_FEATURES>;
@@ -108,6 +108,10 @@ pub struct Uncertainty {
     pub sd: [f64; 3],
     /// The 90% interval `[low, high]` around the angle (not wrapped to ±180°).
     pub interval90: [[f64; 2]; 3],
+    /// The covariance of the small turn `δ` (`R ← exp([δ]ₓ) R`, radians²): the raw one
+    /// ([`RawSpread::turn_cov`]) scaled by the calibration (the geometric mean of the calibrated
+    /// to raw standard deviation ratios of the angles it determines), for filters on rotations.
+    pub turn_cov: Matrix3<f64>,
 }
 
 /// The features of one angle (see the module docs).
@@ -211,9 +215,24 @@ impl Calibration {
 pub fn uncertainty_of(models: &[AngleModel; 3], raw: &RawSpread, angles: [f64; 3]) -> Uncertainty {
     let yaw = angles[1];
     let half = [0, 1, 2].map(|k| models[k].half_width(&features(raw.sd_deg[k], yaw, raw.misfit)));
+    let sd = half.map(|h| h / Z90);
+    // The scale of the turn's covariance, from the angles the fit determines (not those at the
+    // cap, nor those the gimbal lock leaves undetermined).
+    let logs: Vec<f64> = (0..3)
+        .filter(|&k| half[k] < MAX_HALF_WIDTH_DEG && raw.sd_deg[k].is_finite())
+        .map(|k| (sd[k] / raw.sd_deg[k]).ln())
+        .filter(|v| v.is_finite())
+        .collect();
+    let turn_cov = if logs.is_empty() || !raw.turn_cov.iter().all(|v| v.is_finite()) {
+        Matrix3::identity() * (MAX_HALF_WIDTH_DEG / Z90).to_radians().powi(2)
+    } else {
+        let g = (logs.iter().sum::<f64>() / logs.len() as f64).exp();
+        raw.turn_cov * (g * g)
+    };
     Uncertainty {
-        sd: half.map(|h| h / Z90),
+        sd,
         interval90: [0, 1, 2].map(|k| [angles[k] - half[k], angles[k] + half[k]]),
+        turn_cov,
     }
 }
 
@@ -458,6 +477,7 @@ mod tests {
             sd_deg: [1.0, 2.0, f64::INFINITY],
             sigma_px: 1.0,
             points: 68,
+            turn_cov: Matrix3::identity() * 1e-4,
             misfit: 0.1,
         };
         let u = uncertainty_of(&models, &raw, [10.0, -20.0, 30.0]);

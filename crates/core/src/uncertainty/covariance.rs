@@ -36,6 +36,9 @@ pub struct RawSpread {
     pub sigma_px: f64,
     /// The landmarks that took part (weight above zero).
     pub points: usize,
+    /// The covariance of the small turn `δ` (`R ← exp([δ]ₓ) R`, world frame), radians²: the
+    /// rotation's own uncertainty, which has no gimbal lock (what a filter on rotations takes).
+    pub turn_cov: Matrix3<f64>,
     /// The answer's misfit ([`crate::pose::Estimate::misfit`]: the share of the landmarks'
     /// spread the mean shape leaves unexplained), filled in by the estimator; NaN until then.
     pub misfit: f64,
@@ -120,6 +123,7 @@ pub fn raw_spread(
         sd_deg,
         sigma_px: sigma2.sqrt(),
         points,
+        turn_cov: cov_delta,
         misfit: f64::NAN,
     })
 }
