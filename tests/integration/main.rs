@@ -19,3 +19,4 @@ mod model_bundle;
 mod opencv_frame;
 mod service_process;
 mod sfm_bfm;
+mod uncertainty_aflw;

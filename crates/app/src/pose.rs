@@ -30,6 +30,9 @@ pub struct FaceSpec<'a> {
 pub struct FacePose {
     pub record: PoseRecord,
     pub rotation: facepose_core::geometry::Rotation,
+    /// The covariance of the rotation's small turn (radians²), when the answer has an
+    /// uncertainty: what the stream's Kalman filter weighs the frame by.
+    pub turn_cov: Option<nalgebra::Matrix3<f64>>,
     pub scheme: String,
 }
 
@@ -82,6 +85,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         },
     )?;
     let rotation = estimate.rotation;
+    let turn_cov = estimate.uncertainty.map(|u| u.turn_cov);
     let record = PoseRecord::from(estimate);
     if !record.is_finite() {
         return Err(ServiceError::invalid(
@@ -92,6 +96,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
     Ok(FacePose {
         record,
         rotation,
+        turn_cov,
         scheme: scheme.to_string(),
     })
 }

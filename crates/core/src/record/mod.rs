@@ -15,6 +15,7 @@ use crate::error::{Error, Result};
 use crate::geometry::rotation_rows;
 use crate::pose::{Estimate, Method};
 use crate::shape::{MAX_POINTS, Shape2};
+use crate::uncertainty::Uncertainty;
 
 /// Landmarks as sent: `[[x, y] | null, ...]`. Deserializing names the first bad landmark by
 /// its index ("landmark 3 ...") and says what is expected; the point count is checked against
@@ -390,6 +391,52 @@ pub struct PoseRecord {
     /// their scheme poorly (empty when there is nothing to say).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// How far to trust each angle (absent when the model has no calibration).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncertainty: Option<UncertaintyRecord>,
+}
+
+/// How far to trust one angle, degrees.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct AngleUncertainty {
+    /// Standard deviation: the 90% interval is the angle ± 1.645 of them.
+    pub sd: f64,
+    /// The interval that holds the true angle for 90% of faces, `[low, high]` around the
+    /// angle (not wrapped to ±180°; a half-width of 180° says the angle is undetermined).
+    pub interval90: [f64; 2],
+}
+
+/// Per angle, how far to trust it: calibrated on real faces (docs/API.md, "Uncertainty").
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
+pub struct UncertaintyRecord {
+    pub yaw: AngleUncertainty,
+    pub pitch: AngleUncertainty,
+    pub roll: AngleUncertainty,
+}
+
+impl From<&Uncertainty> for UncertaintyRecord {
+    fn from(u: &Uncertainty) -> Self {
+        let angle = |k: usize| AngleUncertainty {
+            sd: u.sd[k],
+            interval90: u.interval90[k],
+        };
+        // Uncertainty is pitch, yaw, roll.
+        UncertaintyRecord {
+            pitch: angle(0),
+            yaw: angle(1),
+            roll: angle(2),
+        }
+    }
+}
+
+impl UncertaintyRecord {
+    fn numbers(&self) -> impl Iterator<Item = f64> + '_ {
+        [&self.yaw, &self.pitch, &self.roll]
+            .into_iter()
+            .flat_map(|a| [a.sd, a.interval90[0], a.interval90[1]])
+    }
 }
 
 impl PoseRecord {
@@ -399,6 +446,8 @@ impl PoseRecord {
             .iter()
             .chain(self.rotation.iter().flatten())
             .chain(self.translation.iter().flatten())
+            .copied()
+            .chain(self.uncertainty.iter().flat_map(UncertaintyRecord::numbers))
             .all(|v| v.is_finite())
     }
 }
@@ -415,6 +464,7 @@ impl From<Estimate> for PoseRecord {
             method: e.method,
             translation: e.translation.map(|t| [t.x, t.y, t.z]),
             warnings: e.warnings.iter().map(ToString::to_string).collect(),
+            uncertainty: e.uncertainty.as_ref().map(UncertaintyRecord::from),
         }
     }
 }

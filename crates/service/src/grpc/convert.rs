@@ -4,10 +4,11 @@
 use facepose_app::error::ServiceError;
 use facepose_app::jobs::Job;
 use facepose_app::pose::{FacePose, FaceSpec};
+use facepose_app::tracking::Smoothed;
 use facepose_app::views::{ModelView, VersionView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::validate::ValidationReport;
-use facepose_core::record::ImageSize;
+use facepose_core::record::{AngleUncertainty, ImageSize};
 
 use super::error;
 use crate::proto;
@@ -92,7 +93,7 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
     }
 }
 
-pub fn pose_message(p: &FacePose, smoothed: bool) -> proto::Pose {
+pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
     let r = &p.record;
     proto::Pose {
         yaw: r.yaw,
@@ -106,8 +107,21 @@ pub fn pose_message(p: &FacePose, smoothed: bool) -> proto::Pose {
         translation: r
             .translation
             .map(|[x, y, z]| proto::Translation { x, y, z }),
-        smoothed,
+        smoothed: smoothing.smoothed,
         warnings: r.warnings.clone(),
+        uncertainty: r.uncertainty.as_ref().map(|u| {
+            let angle = |a: &AngleUncertainty| proto::AngleUncertainty {
+                sd: a.sd,
+                interval90_low: a.interval90[0],
+                interval90_high: a.interval90[1],
+            };
+            proto::Uncertainty {
+                yaw: Some(angle(&u.yaw)),
+                pitch: Some(angle(&u.pitch)),
+                roll: Some(angle(&u.roll)),
+            }
+        }),
+        gated: smoothing.gated,
     }
 }
 

@@ -24,6 +24,7 @@ use facepose_app::error::ServiceError;
 use facepose_app::jobs::Cancel;
 use facepose_app::metrics::{FaceTally, Transport};
 use facepose_app::pose::{INLINE_FACES, estimate_face, for_each_face};
+use facepose_app::tracking::Smoothed;
 use tonic::{Request, Response, Status, Streaming};
 
 pub use convert::landmark_messages;
@@ -69,7 +70,7 @@ fn face_result(
     let result = match estimate {
         Ok(p) => {
             tally.ok(p.record.method);
-            proto::face_result::Result::Pose(pose_message(&p, false))
+            proto::face_result::Result::Pose(pose_message(&p, Smoothed::default()))
         }
         Err(e) => {
             tally.err(e.kind());
@@ -134,7 +135,7 @@ impl PoseService for PoseApi {
             app.metrics.faces(&tally, Transport::Grpc);
             let p = result?;
             Ok(proto::EstimateResponse {
-                pose: Some(pose_message(&p, false)),
+                pose: Some(pose_message(&p, Smoothed::default())),
                 id: face.id,
                 model: model.name.clone(),
                 model_version: model.version.clone(),

@@ -11,8 +11,9 @@ use facepose_app::error::ServiceError;
 use facepose_app::metrics::{FaceTally, Transport};
 use facepose_app::pose::estimate_face;
 use facepose_app::registry::ModelSet;
-use facepose_app::tracking::{Session, track_key};
+use facepose_app::tracking::{Filter, Session, track_key};
 use facepose_app::{App, StreamPermit};
+use facepose_core::geometry::rotation_kalman::KalmanParams;
 use facepose_core::geometry::smoothing::OneEuroParams;
 use futures_util::Stream;
 use tonic::{Status, Streaming};
@@ -23,21 +24,48 @@ use crate::proto;
 
 pub type FrameStream = Pin<Box<dyn Stream<Item = Result<proto::FrameResult, Status>> + Send>>;
 
-/// The smoothing parameters of a `Smoothing` message (zero fields take the defaults), or
-/// `None` when it is off.
-pub fn smoothing_params(s: &proto::Smoothing) -> Result<Option<OneEuroParams>, ServiceError> {
+/// The smoothing filter of a `Smoothing` message (zero fields take the defaults), or `None`
+/// when it is off. An unspecified filter is the One Euro filter when any of its parameters is
+/// set (as the message meant before the Kalman filter), else the Kalman filter.
+pub fn smoothing_params(s: &proto::Smoothing) -> Result<Option<Filter>, ServiceError> {
     if !s.enabled {
         return Ok(None);
     }
-    let d = OneEuroParams::default();
     let or = |v: f64, default: f64| if v == 0.0 { default } else { v };
-    let p = OneEuroParams {
-        min_cutoff_hz: or(s.min_cutoff_hz, d.min_cutoff_hz),
-        beta: or(s.beta, d.beta),
-        d_cutoff_hz: or(s.d_cutoff_hz, d.d_cutoff_hz),
+    let one_euro_set = [s.min_cutoff_hz, s.beta, s.d_cutoff_hz]
+        .iter()
+        .any(|&v| v != 0.0);
+    let kalman = match proto::SmoothingFilter::try_from(s.filter) {
+        Ok(proto::SmoothingFilter::Kalman) => true,
+        Ok(proto::SmoothingFilter::OneEuro) => false,
+        Ok(proto::SmoothingFilter::Unspecified) => !one_euro_set,
+        Err(_) => {
+            return Err(ServiceError::invalid(format!(
+                "smoothing: unknown filter {} (known: 1 SMOOTHING_FILTER_KALMAN, 2 SMOOTHING_FILTER_ONE_EURO)",
+                s.filter
+            )));
+        }
     };
-    p.validate()?;
-    Ok(Some(p))
+    let filter = if kalman {
+        let d = KalmanParams::default();
+        let p = KalmanParams {
+            acceleration_deg_s2: or(s.acceleration_deg_s2, d.acceleration_deg_s2),
+            gate: or(s.gate, d.gate),
+            ..d
+        };
+        p.validate()?;
+        Filter::Kalman(p)
+    } else {
+        let d = OneEuroParams::default();
+        let p = OneEuroParams {
+            min_cutoff_hz: or(s.min_cutoff_hz, d.min_cutoff_hz),
+            beta: or(s.beta, d.beta),
+            d_cutoff_hz: or(s.d_cutoff_hz, d.d_cutoff_hz),
+        };
+        p.validate()?;
+        Filter::OneEuro(p)
+    };
+    Ok(Some(filter))
 }
 
 /// Estimates every face of `frame` with the model it names in `models`, smoothing each track

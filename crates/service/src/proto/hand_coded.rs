@@ -24,7 +24,7 @@ use prost::encoding::{
 };
 use prost::{DecodeError, Message};
 
-use super::{Camera, ImageSize, Landmark, Translation};
+use super::{Camera, ImageSize, Landmark, Translation, Uncertainty};
 
 /// One face to estimate.
 #[derive(Clone, PartialEq, Default, Debug)]
@@ -74,6 +74,10 @@ pub struct Pose {
     pub smoothed: bool,
     /// What the caller should know about this answer.
     pub warnings: Vec<String>,
+    /// How far to trust each angle.
+    pub uncertainty: Option<Uncertainty>,
+    /// In EstimateStream with the Kalman filter: the frame was left out as an outlier.
+    pub gated: bool,
 }
 
 /// Names the field of a decode error, as prost's derive does.
@@ -180,6 +184,12 @@ impl Message for Pose {
             pbool::encode(10, &self.smoothed, buf);
         }
         string::encode_repeated(11, &self.warnings, buf);
+        if let Some(u) = &self.uncertainty {
+            message::encode(12, u, buf);
+        }
+        if self.gated {
+            pbool::encode(13, &self.gated, buf);
+        }
     }
 
     fn merge_field(
@@ -217,6 +227,16 @@ impl Message for Pose {
                 .map_err(in_field(NAME, "smoothed")),
             11 => string::merge_repeated(wire_type, &mut self.warnings, buf, ctx)
                 .map_err(in_field(NAME, "warnings")),
+            12 => message::merge(
+                wire_type,
+                self.uncertainty.get_or_insert_with(Uncertainty::default),
+                buf,
+                ctx,
+            )
+            .map_err(in_field(NAME, "uncertainty")),
+            13 => {
+                pbool::merge(wire_type, &mut self.gated, buf, ctx).map_err(in_field(NAME, "gated"))
+            }
             _ => skip_field(wire_type, tag, buf, ctx),
         }
     }
@@ -237,6 +257,11 @@ impl Message for Pose {
                 .map_or(0, |t| message::encoded_len(9, t))
             + if self.smoothed { key_len(10) + 1 } else { 0 }
             + string::encoded_len_repeated(11, &self.warnings)
+            + self
+                .uncertainty
+                .as_ref()
+                .map_or(0, |u| message::encoded_len(12, u))
+            + if self.gated { key_len(13) + 1 } else { 0 }
     }
 
     fn clear(&mut self) {
@@ -481,8 +506,26 @@ mod tests {
             translation in proptest::option::of((any_f64(), any_f64(), any_f64())),
             smoothed in any::<bool>(),
             warnings in proptest::collection::vec(text(), 0..3),
+            uncertainty in proptest::option::of(proptest::collection::vec(any_f64(), 9)),
+            gated in any::<bool>(),
         ) -> (Pose, reference::Pose) {
             let (yaw, pitch, roll, residual) = angles;
+            let ours = |v: &[f64]| {
+                let angle = |k: usize| super::super::AngleUncertainty {
+                    sd: v[3 * k],
+                    interval90_low: v[3 * k + 1],
+                    interval90_high: v[3 * k + 2],
+                };
+                Uncertainty { yaw: Some(angle(0)), pitch: Some(angle(1)), roll: Some(angle(2)) }
+            };
+            let theirs = |v: &[f64]| {
+                let angle = |k: usize| reference::AngleUncertainty {
+                    sd: v[3 * k],
+                    interval90_low: v[3 * k + 1],
+                    interval90_high: v[3 * k + 2],
+                };
+                reference::Uncertainty { yaw: Some(angle(0)), pitch: Some(angle(1)), roll: Some(angle(2)) }
+            };
             (
                 Pose {
                     yaw, pitch, roll,
@@ -494,12 +537,16 @@ mod tests {
                     translation: translation.map(|(x, y, z)| Translation { x, y, z }),
                     smoothed,
                     warnings: warnings.clone(),
+                    uncertainty: uncertainty.as_deref().map(ours),
+                    gated,
                 },
                 reference::Pose {
                     yaw, pitch, roll, rotation, visible, residual, method, scheme,
                     translation: translation.map(|(x, y, z)| reference::Translation { x, y, z }),
                     smoothed,
                     warnings,
+                    uncertainty: uncertainty.as_deref().map(theirs),
+                    gated,
                 },
             )
         }

@@ -511,11 +511,12 @@ async fn streams_answer_every_frame_in_order_and_can_smooth() {
             .iter()
             .map(|p| [p[0] + noise(), p[1] + noise()])
             .collect();
+        // One Euro parameters and no filter named: the One Euro filter, as before the Kalman
+        // filter existed.
         let smoothing = (k == 0).then_some(proto::Smoothing {
             enabled: true,
             min_cutoff_hz: 0.5,
-            beta: 0.0,
-            d_cutoff_hz: 0.0,
+            ..Default::default()
         });
         // The same face twice: tracked (smoothed) under its id and raw in a second stream-less
         // comparison below.
@@ -552,8 +553,7 @@ async fn streams_answer_every_frame_in_order_and_can_smooth() {
         Some(proto::Smoothing {
             enabled: true,
             min_cutoff_hz: -1.0,
-            beta: 0.0,
-            d_cutoff_hz: 0.0,
+            ..Default::default()
         }),
     ))
     .await
@@ -571,6 +571,101 @@ async fn streams_answer_every_frame_in_order_and_can_smooth() {
         "{err:?}"
     );
     assert!(out.next().await.is_none());
+}
+
+/// The default filter (Kalman): each pose carries its uncertainty, a still face with jitter
+/// comes out steadier, a frame the detector lost (every point thrown) comes with a large
+/// uncertainty and barely moves the track, a confident frame of another pose (a track switched
+/// to another face) is gated out, and an unknown filter is refused.
+#[tokio::test]
+async fn kalman_smoothing_weighs_frames_and_gates_wild_ones() {
+    let server = Server::start(&[]);
+    let mut c = server.grpc().await;
+    let (tx, mut out) = open_stream(&mut c, 64).await;
+    let truth = rotation(20.0, -5.0, 3.0);
+    let clean = face68(20.0, -5.0, 3.0);
+    let mut seed = 777u64;
+    let mut uniform = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    let (mut raw_err, mut smooth_err) = (0.0, 0.0);
+    let n = 60u64;
+    for k in 0..n {
+        // Frame 40: every point off by up to ±40 px (the face is about 100 px wide).
+        let amp = if k == 40 { 80.0 } else { 5.0 };
+        let base = if k == 50 {
+            face68(-25.0, 10.0, 0.0)
+        } else {
+            clean.clone()
+        };
+        let noisy: Vec<[f64; 2]> = base
+            .iter()
+            .map(|p| [p[0] + amp * uniform(), p[1] + amp * uniform()])
+            .collect();
+        let smoothing = (k == 0).then_some(proto::Smoothing {
+            enabled: true,
+            ..Default::default()
+        });
+        tx.send(frame(k, vec![proto_face(&noisy, "", "", "t1")], smoothing))
+            .await
+            .unwrap();
+        let res = out.next().await.unwrap().unwrap();
+        let pose = pose_of(&res.faces[0]);
+        assert!(pose.smoothed);
+        let u = pose.uncertainty.as_ref().expect("an uncertainty");
+        let yaw = u.yaw.as_ref().unwrap();
+        assert!(yaw.sd > 0.0 && yaw.interval90_low < yaw.interval90_high);
+        let raw = c
+            .estimate(request(proto_face(&noisy, "", "", ""), ""))
+            .await
+            .unwrap()
+            .into_inner()
+            .pose
+            .unwrap();
+        assert!(!raw.gated && raw.uncertainty.is_some());
+        let err = geodesic_deg(&rotation_flat(&pose.rotation), &truth);
+        if k == 40 {
+            // Taken, but weighed by its uncertainty: the track stays.
+            assert!(yaw.sd > 10.0, "{u:?}");
+            assert!(err < 2.0, "the lost frame moved the track {err}°");
+        } else if k == 50 {
+            assert!(pose.gated, "the other pose was taken: {pose:?}");
+            assert!(err < 2.0, "the other pose moved the track {err}°");
+        } else if k > 1 {
+            assert!(!pose.gated, "frame {k} gated");
+            assert!(yaw.sd < 10.0, "frame {k}: {u:?}");
+        }
+        if k >= 20 && k != 40 && k != 50 {
+            raw_err += geodesic_deg(&rotation_flat(&raw.rotation), &truth).powi(2);
+            smooth_err += geodesic_deg(&rotation_flat(&pose.rotation), &truth).powi(2);
+        }
+    }
+    assert!(
+        smooth_err < raw_err / 2.0,
+        "squared error smoothed {smooth_err} raw {raw_err}"
+    );
+    tx.send(frame(
+        n,
+        vec![],
+        Some(proto::Smoothing {
+            enabled: true,
+            filter: 7,
+            ..Default::default()
+        }),
+    ))
+    .await
+    .unwrap();
+    let err = out
+        .next()
+        .await
+        .unwrap()
+        .map(|_| ())
+        .expect_err("an error status");
+    assert_eq!(err.code(), Code::InvalidArgument);
+    assert!(err.message().contains("unknown filter 7"), "{err:?}");
 }
 
 #[tokio::test]

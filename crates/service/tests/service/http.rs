@@ -134,6 +134,69 @@ async fn known_poses_come_back() {
     assert_eq!(r.headers()["x-request-id"].len(), 16);
 }
 
+/// Every answer of the default model carries an uncertainty per angle: a standard deviation
+/// and a 90% interval centred on the angle, 1.645 of them wide on each side; a profile face's
+/// roll and pitch are less certain than a frontal face's, and fewer points widen it.
+#[tokio::test]
+async fn answers_carry_their_uncertainty() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let url = server.url("/v1/pose");
+    let sd = |v: &Value, angle: &str| v["uncertainty"][angle]["sd"].as_f64().unwrap();
+    let mut seen = Vec::new();
+    for (pose, method) in [
+        ((0.0, 0.0, 0.0), "auto"),
+        ((70.0, 0.0, 0.0), "auto"),
+        ((0.0, 0.0, 0.0), "regression"),
+    ] {
+        let body = json!({"landmarks": face68(pose.0, pose.1, pose.2), "method": method});
+        let (status, v) = post(&c, &url, &body).await;
+        assert_eq!(status, StatusCode::OK, "{v}");
+        for angle in ["yaw", "pitch", "roll"] {
+            let u = &v["uncertainty"][angle];
+            let (s, lo, hi) = (
+                u["sd"].as_f64().unwrap(),
+                u["interval90"][0].as_f64().unwrap(),
+                u["interval90"][1].as_f64().unwrap(),
+            );
+            let a = v[angle].as_f64().unwrap();
+            assert!(s > 0.0 && s < 110.0, "{v}");
+            assert!(((lo + hi) / 2.0 - a).abs() < 1e-9, "{v}");
+            assert!(
+                ((hi - lo) / 2.0 - 1.644_853_626_951_472_2 * s).abs() < 1e-6,
+                "{v}"
+            );
+        }
+        seen.push(v);
+    }
+    assert!(
+        sd(&seen[1], "roll") > sd(&seen[0], "roll"),
+        "{} vs {}",
+        seen[1],
+        seen[0]
+    );
+    // The same noisy face with half its points missing: wider.
+    let mut seed = 99u64;
+    let mut noise = move || {
+        seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 4.0
+    };
+    let noisy: Vec<[f64; 2]> = face68(0.0, 0.0, 0.0)
+        .iter()
+        .map(|p| [p[0] + noise(), p[1] + noise()])
+        .collect();
+    let mut half: Vec<Value> = noisy.iter().map(|p| json!(p)).collect();
+    for p in half.iter_mut().step_by(2) {
+        *p = Value::Null;
+    }
+    let (status, v) = post(&c, &url, &json!({"landmarks": half, "method": "fit"})).await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    let (_, full) = post(&c, &url, &json!({"landmarks": noisy, "method": "fit"})).await;
+    assert!(sd(&v, "yaw") > sd(&full, "yaw"), "{v} vs {full}");
+}
+
 #[tokio::test]
 async fn mediapipe_faces_in_normalized_coordinates() {
     let server = Server::start(&[]);
