@@ -248,7 +248,10 @@ fn run_paper(
         a.train_shapes
     ));
     let t = Instant::now();
-    let model = train_paper_model(&scheme, train, a.components, a.seed)?;
+    let mut model = train_paper_model(&scheme, train, a.components, a.seed)?;
+    // The uncertainty's calibration is of the estimators on real faces: the served model's.
+    let (_, served) = super::load_model(a.model.as_deref())?;
+    model.calibration = served.calibration.clone();
     let train_time = t.elapsed().as_secs_f64();
     let entries = default_entries(&model, methods);
     let opts = PaperOptions {
@@ -294,6 +297,11 @@ fn run_paper(
          needs all five; the regression needs both eyes), marked [1 dropped]; their curves show that one point.\n\n\
          {robust}\
          ![Robustness curves]({ROBUSTNESS_PNG})\n\n\
+         ### The uncertainty under the paper's protocol\n\n\
+         The share of the robustness draws whose 90% interval (the served model's calibration, fitted on real faces) holds the true yaw / \
+         pitch, percent. The truth is exact here, and the test shapes differ from the mean in ways real faces do not (the population is drawn \
+         from a morphable model), so this measures how the calibration learned on real faces carries to another kind of error.\n\n\
+         {coverage}\n\
          ### Error over the pose grid\n\n\
          Mean of the yaw and pitch absolute errors at each pose over the test shapes that see it (testing stage); one colour scale per panel, from 0 to about its 95th percentile (larger errors take the top colour; grey: no estimate).\n\n\
          ![Error over the yaw x pitch grid]({HEATMAP_PNG})\n",
@@ -321,6 +329,7 @@ fn run_paper(
         samples = opts.robustness_samples,
         cap = facepose_core::eval::paper::MAX_MISSING_FIVE,
         robust = robustness_markdown(&paper),
+        coverage = facepose_core::eval::paper::coverage_markdown(&paper),
     );
     Ok((text, paper))
 }

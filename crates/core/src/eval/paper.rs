@@ -213,6 +213,10 @@ pub struct RobustnessRow {
     pub mae_pitch: f64,
     /// Mean of the two.
     pub mae: f64,
+    /// The share of the estimates whose 90% interval holds the true yaw and pitch (NaN when
+    /// the model has no calibration).
+    pub coverage_yaw: f64,
+    pub coverage_pitch: f64,
 }
 
 /// Mean absolute error (mean of yaw and pitch) at each pose of the grid, for one entry.
@@ -347,6 +351,11 @@ struct Acc {
     ae_yaw: f64,
     ae_pitch: f64,
     geodesic: f64,
+    /// Estimates with an uncertainty, and those whose 90% interval holds the true yaw and
+    /// pitch.
+    with_interval: usize,
+    covered_yaw: usize,
+    covered_pitch: usize,
 }
 
 impl Acc {
@@ -364,7 +373,23 @@ impl Acc {
         self.ae_yaw += dy.abs();
         self.ae_pitch += dp.abs();
         self.geodesic += geodesic_deg(&e.rotation, &truth.to_rotation());
+        if let Some(u) = &e.uncertainty {
+            let half = |k: usize| 0.5 * (u.interval90[k][1] - u.interval90[k][0]);
+            self.with_interval += 1;
+            self.covered_pitch += usize::from(dp.abs() <= half(0));
+            self.covered_yaw += usize::from(dy.abs() <= half(1));
+        }
         Some(0.5 * (dy.abs() + dp.abs()))
+    }
+
+    /// The share of the estimates with an uncertainty whose interval holds the truth (NaN
+    /// without any).
+    fn coverage(&self, covered: usize) -> f64 {
+        if self.with_interval == 0 {
+            f64::NAN
+        } else {
+            covered as f64 / self.with_interval as f64
+        }
     }
 
     fn mean(&self, v: f64) -> f64 {
@@ -547,6 +572,8 @@ fn robustness(
                 mae_yaw: y,
                 mae_pitch: pi,
                 mae: 0.5 * (y + pi),
+                coverage_yaw: acc.coverage(acc.covered_yaw),
+                coverage_pitch: acc.coverage(acc.covered_pitch),
             });
             report.step();
         }
@@ -747,6 +774,66 @@ pub fn robustness_markdown(report: &PaperReport) -> String {
             out.push_str(&format!("| {l} | {} |\n", cells.join(" | ")));
         }
         out.push('\n');
+    }
+    out
+}
+
+/// The coverage of the uncertainty's 90% intervals per entry and robustness condition: yaw /
+/// pitch, percent.
+pub fn coverage_markdown(report: &PaperReport) -> String {
+    let conds: Vec<Perturbation> = report
+        .options
+        .noise
+        .iter()
+        .map(|&f| Perturbation::Noise(f))
+        .chain(
+            report
+                .options
+                .missing
+                .iter()
+                .map(|&k| Perturbation::Missing(k)),
+        )
+        .collect();
+    let head: Vec<String> = conds
+        .iter()
+        .map(|c| match c {
+            Perturbation::Noise(f) => format!("σ {}%", f * 100.0),
+            Perturbation::Missing(k) => format!("{k} missing"),
+        })
+        .collect();
+    let mut out = format!(
+        "| method | {} |\n|---|{}\n",
+        head.join(" | "),
+        "---|".repeat(head.len())
+    );
+    let mut labels: Vec<&str> = Vec::new();
+    for r in &report.robustness {
+        if !labels.contains(&r.label.as_str()) {
+            labels.push(&r.label);
+        }
+    }
+    for l in labels {
+        let cells: Vec<String> = conds
+            .iter()
+            .map(|c| {
+                report
+                    .robustness
+                    .iter()
+                    .find(|r| r.label == l && r.perturbation == *c)
+                    .map_or("".into(), |r| {
+                        if r.coverage_yaw.is_nan() {
+                            "-".into()
+                        } else {
+                            format!(
+                                "{:.0} / {:.0}",
+                                100.0 * r.coverage_yaw,
+                                100.0 * r.coverage_pitch
+                            )
+                        }
+                    })
+            })
+            .collect();
+        out.push_str(&format!("| {l} | {} |\n", cells.join(" | ")));
     }
     out
 }
