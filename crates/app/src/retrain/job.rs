@@ -223,7 +223,9 @@ async fn steps(
 
 /// An ibug68 model serves MediaPipe input as the default model does: the default model's face
 /// mesh (MediaPipe's canonical mesh) re-aligned to the new mean, so that web apps sending
-/// MediaPipe's points keep their answers across a retrain.
+/// MediaPipe's points keep their answers across a retrain. It also takes the default model's
+/// uncertainty calibration (of the estimators on real ibug68 faces: uploaded shapes have no
+/// ground-truth pose to fit one on), so that answers keep their uncertainty.
 fn carry_mesh(model: &mut PoseModel) -> Result<(), ServiceError> {
     if model.scheme.name != "ibug68" {
         return Ok(());
@@ -235,6 +237,7 @@ fn carry_mesh(model: &mut PoseModel) -> Result<(), ServiceError> {
             .attach_mesh(mesh.source())
             .map_err(|e| ServiceError::invalid(format!("aligning the face mesh failed: {e}")))?;
     }
+    model.calibration = default.calibration.clone();
     Ok(())
 }
 
@@ -255,7 +258,7 @@ fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
     if spec.scheme.name == "ibug68" {
         notes.push_str(
             "; face mesh: the default model's (MediaPipe's canonical face mesh, Apache-2.0), \
-             aligned to the new mean",
+             aligned to the new mean; uncertainty calibration: the default model's",
         );
     }
     if !spec.notes.is_empty() {

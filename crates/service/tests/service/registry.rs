@@ -113,6 +113,15 @@ async fn retraining_changes_the_served_model() {
     assert_eq!(v["model_version"], "2");
     let new_err = errors(&v);
     assert!(new_err.iter().all(|e| *e < 0.5), "new model: {new_err:?}");
+    // It carries the default model's calibration: its answers keep their uncertainty.
+    assert_eq!(new.calibration, old.calibration);
+    assert!(old.calibration.is_some());
+    for res in v["results"].as_array().unwrap() {
+        assert!(
+            res["uncertainty"]["yaw"]["sd"].as_f64().unwrap() > 0.0,
+            "{res}"
+        );
+    }
     let (s, _) = activate(&c, &server, "1").await;
     assert_eq!(s, StatusCode::OK);
     let (_, v) = json_of(
