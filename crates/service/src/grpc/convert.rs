@@ -112,8 +112,7 @@ pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
         uncertainty: r.uncertainty.as_ref().map(|u| {
             let angle = |a: &AngleUncertainty| proto::AngleUncertainty {
                 sd: a.sd,
-                interval90_low: a.interval90[0],
-                interval90_high: a.interval90[1],
+                interval90: a.interval90.to_vec(),
             };
             proto::Uncertainty {
                 yaw: Some(angle(&u.yaw)),

@@ -513,16 +513,14 @@ mod tests {
             let ours = |v: &[f64]| {
                 let angle = |k: usize| super::super::AngleUncertainty {
                     sd: v[3 * k],
-                    interval90_low: v[3 * k + 1],
-                    interval90_high: v[3 * k + 2],
+                    interval90: v[3 * k + 1..3 * k + 3].to_vec(),
                 };
                 Uncertainty { yaw: Some(angle(0)), pitch: Some(angle(1)), roll: Some(angle(2)) }
             };
             let theirs = |v: &[f64]| {
                 let angle = |k: usize| reference::AngleUncertainty {
                     sd: v[3 * k],
-                    interval90_low: v[3 * k + 1],
-                    interval90_high: v[3 * k + 2],
+                    interval90: v[3 * k + 1..3 * k + 3].to_vec(),
                 };
                 reference::Uncertainty { yaw: Some(angle(0)), pitch: Some(angle(1)), roll: Some(angle(2)) }
             };

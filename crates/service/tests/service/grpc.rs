@@ -617,7 +617,7 @@ async fn kalman_smoothing_weighs_frames_and_gates_wild_ones() {
         assert!(pose.smoothed);
         let u = pose.uncertainty.as_ref().expect("an uncertainty");
         let yaw = u.yaw.as_ref().unwrap();
-        assert!(yaw.sd > 0.0 && yaw.interval90_low < yaw.interval90_high);
+        assert!(yaw.sd > 0.0 && yaw.interval90.len() == 2 && yaw.interval90[0] < yaw.interval90[1]);
         let raw = c
             .estimate(request(proto_face(&noisy, "", "", ""), ""))
             .await

@@ -1422,6 +1422,8 @@ async fn http_json_uses_the_grpc_field_names() {
         .json()
         .await
         .unwrap();
-    // `smoothed` belongs to the gRPC stream; `translation` comes only with a camera.
-    assert_same_names("Pose", &pose, &["smoothed", "translation"]);
+    // `smoothed` and `gated` belong to the gRPC stream; `translation` comes only with a camera.
+    assert_same_names("Pose", &pose, &["smoothed", "gated", "translation"]);
+    assert_same_names("Uncertainty", &pose["uncertainty"], &[]);
+    assert_same_names("AngleUncertainty", &pose["uncertainty"]["yaw"], &[]);
 }

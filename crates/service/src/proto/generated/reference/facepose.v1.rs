@@ -129,20 +129,18 @@ pub struct Pose {
     pub gated: bool,
 }
 /// How far to trust one angle, degrees.
-#[derive(Clone, Copy, PartialEq, ::prost::Message)]
+#[derive(Clone, PartialEq, ::prost::Message)]
 pub struct AngleUncertainty {
     /// Standard deviation: the 90% interval is the angle ± 1.645 of them.
     #[prost(double, tag = "1")]
     pub sd: f64,
-    /// The interval that holds the true angle for 90% of faces, around the angle (not wrapped to
-    /// ±180°; a half-width of 180° says the angle is undetermined).
-    #[prost(double, tag = "2")]
-    pub interval90_low: f64,
-    #[prost(double, tag = "3")]
-    pub interval90_high: f64,
+    /// \[low, high\]: the interval that holds the true angle for 90% of faces, around the angle (not
+    /// wrapped to ±180°; a half-width of 180° says the angle is undetermined).
+    #[prost(double, repeated, tag = "2")]
+    pub interval90: ::prost::alloc::vec::Vec<f64>,
 }
 /// Per angle, how far to trust it (docs/API.md, "Uncertainty").
-#[derive(Clone, Copy, PartialEq, ::prost::Message)]
+#[derive(Clone, PartialEq, ::prost::Message)]
 pub struct Uncertainty {
     #[prost(message, optional, tag = "1")]
     pub yaw: ::core::option::Option<AngleUncertainty>,
