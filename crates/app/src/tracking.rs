@@ -34,14 +34,15 @@ pub enum Filter {
 /// One track's filter state.
 #[derive(Debug, Clone)]
 enum TrackFilter {
-    Kalman(RotationKalman),
+    // Boxed: its 6 x 6 covariance makes it five times the One Euro filter's size.
+    Kalman(Box<RotationKalman>),
     OneEuro(RotationOneEuro),
 }
 
 impl TrackFilter {
     fn new(f: &Filter) -> Result<Self, ServiceError> {
         Ok(match f {
-            Filter::Kalman(p) => TrackFilter::Kalman(RotationKalman::new(*p)?),
+            Filter::Kalman(p) => TrackFilter::Kalman(Box::new(RotationKalman::new(*p)?)),
             Filter::OneEuro(p) => TrackFilter::OneEuro(RotationOneEuro::new(*p)?),
         })
     }

@@ -185,7 +185,7 @@ impl RotationKalman {
             return pass;
         };
         let d2 = (nu.transpose() * s_inv * nu)[0];
-        if !(d2 <= self.params.gate) {
+        if d2.is_nan() || d2 > self.params.gate {
             st.rejected += 1;
             if st.rejected >= self.params.max_rejected {
                 self.start(m, &c);
