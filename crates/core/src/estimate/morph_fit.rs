@@ -47,6 +47,15 @@ use crate::error::{Error, Result};
 use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
+/// How many principal components the fit moves by default in its first step, and in its robust
+/// step (at most the basis' count). On the default model (50 components) the components past
+/// these, the least energetic, bought no accuracy on AFLW2000-3D for their cost: the
+/// accuracy-speed frontier is in docs/PERFORMANCE.md (`cargo run --release --example
+/// shape_fit_frontier`). `6 + count` a multiple of the tile width: a system's cost moves by
+/// whole tiles.
+pub const DEFAULT_FIT_COMPONENTS: usize = 34;
+pub const DEFAULT_ROBUST_COMPONENTS: usize = 14;
+
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.
 #[derive(Debug, Clone)]
 pub struct MorphableBasis {
@@ -228,7 +237,8 @@ impl MorphableBasis {
         for (j, p) in principal.iter().enumerate() {
             cols[j * flat.len()..(j + 1) * flat.len()].copy_from_slice(&flat.of(p));
         }
-        let (fit_components, robust_components) = (k, k);
+        let fit_components = k.min(DEFAULT_FIT_COMPONENTS);
+        let robust_components = k.min(DEFAULT_ROBUST_COMPONENTS);
         let mut basis = MorphableBasis {
             mean,
             components,
@@ -308,13 +318,14 @@ impl MorphableBasis {
     }
 
     /// How many principal components the fit moves (the others stay at their prior mean): by
-    /// default all.
+    /// default [`DEFAULT_FIT_COMPONENTS`] (all, for a basis of fewer).
     pub fn fit_components(&self) -> usize {
         self.fit_components
     }
 
     /// How many principal components the step after robust reweighting moves, at most
-    /// [`Self::fit_components`]: by default all.
+    /// [`Self::fit_components`]: by default [`DEFAULT_ROBUST_COMPONENTS`] (all, for a basis of
+    /// fewer).
     pub fn robust_components(&self) -> usize {
         self.robust_components.min(self.fit_components)
     }
@@ -1321,11 +1332,17 @@ mod tests {
         }
     }
 
-    /// Every component by default; a fit over fewer takes at least one and at most them all.
+    /// The default counts, capped by the basis; a fit over fewer takes at least one and at most
+    /// them all.
     #[test]
     fn component_counts() {
         let b = random_basis(40, 30, 11);
-        assert_eq!((b.fit_components(), b.robust_components()), (30, 30));
+        assert_eq!(
+            (b.fit_components(), b.robust_components()),
+            (30, DEFAULT_ROBUST_COMPONENTS.min(30))
+        );
+        let few = random_basis(40, 5, 11);
+        assert_eq!((few.fit_components(), few.robust_components()), (5, 5));
         let c = b.clone().with_fit_components(100, 100);
         assert_eq!((c.fit_components(), c.robust_components()), (30, 30));
         let c = b.with_fit_components(0, 9);
