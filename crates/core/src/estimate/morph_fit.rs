@@ -49,11 +49,12 @@ use crate::shape::Shape2;
 
 /// How many principal components the fit moves by default in its first step, and in its robust
 /// step (at most the basis' count). On the default model (50 components) the components past
-/// these, the least energetic, bought no accuracy on AFLW2000-3D for their cost: the
+/// these, the least energetic, bought little accuracy on AFLW2000-3D for their cost: the
 /// accuracy-speed frontier is in docs/PERFORMANCE.md (`cargo run --release --example
-/// shape_fit_frontier`). `6 + count` a multiple of the tile width: a system's cost moves by
-/// whole tiles.
-pub const DEFAULT_FIT_COMPONENTS: usize = 34;
+/// shape_fit_frontier`). Costs move by steps: the coefficient gradient goes through the basis
+/// by 16 components at a time (32 fill two groups), a system by tiles of 4 unknowns (6 + 14
+/// fill five).
+pub const DEFAULT_FIT_COMPONENTS: usize = 32;
 pub const DEFAULT_ROBUST_COMPONENTS: usize = 14;
 
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.
