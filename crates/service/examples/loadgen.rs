@@ -10,11 +10,16 @@
 //! - `loadgen ceiling BODY`: the server's own batch work (`http::answer_batch`: parse,
 //!   estimate, serialize) on a `POST /v1/pose:batch` body, on T threads with no network and no
 //!   server; prints faces/s, the most any server could answer on this machine at that moment.
-//! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send: a
-//!   one-face JSON body, a batch JSON body, and a gRPC-framed `EstimateRequest` for h2load.
+//! - `loadgen bodies DIR`: writes the request bodies the script's wrk and h2load runs send:
+//!   one-face JSON bodies (one a line, for wrk to cycle through), a batch JSON body, and a
+//!   gRPC-framed `EstimateRequest` of the first face for h2load.
 //!
-//! Faces are the default model's mean shape projected at varied poses with 1 px of landmark
-//! noise (seeded), 68 points (`ibug68`) or five (`five`).
+//! Faces (`--faces-from`): `dev` (the default) are real ones, the AFLW2000-3D dev split's
+//! re-annotated 68 landmarks (the faces with every |angle| <= 99°, in the file's order, cycled;
+//! `five` takes their anchors' means), from the shared data (FACEPOSE_DATA, else
+//! ../shared/data); `synthetic` are the default model's mean shape projected at varied poses
+//! with 1 px of landmark noise (seeded), 68 points (`ibug68`) or five (`five`). `--method
+//! default` sends no method: the server's default (`auto`).
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -44,6 +49,7 @@ struct Args {
     dir: String,
     packed: bool,
     threads: usize,
+    source: String,
 }
 
 fn parse_args() -> Args {
@@ -60,6 +66,7 @@ fn parse_args() -> Args {
         dir: ".".into(),
         packed: false,
         threads: 2,
+        source: "dev".into(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -77,6 +84,7 @@ fn parse_args() -> Args {
             "--batch" => a.batch = v().parse().expect("--batch N"),
             "--packed" => a.packed = true,
             "--threads" => a.threads = v().parse().expect("--threads N"),
+            "--faces-from" => a.source = v(),
             c if a.cmd.is_empty() => a.cmd = c.to_string(),
             d if a.cmd == "bodies" || a.cmd == "ceiling" => a.dir = d.to_string(),
             other => panic!("unknown argument {other}"),
@@ -85,8 +93,43 @@ fn parse_args() -> Args {
     a
 }
 
-/// `n` faces in `scheme`, image pixels.
-fn faces(n: usize, scheme: &str, seed: u64) -> Vec<Vec<[f64; 2]>> {
+/// `n` faces in `scheme`, image pixels, from `a.source`; `seed` picks where the real faces
+/// start, or seeds the synthetic ones.
+fn faces(n: usize, a: &Args, seed: u64) -> Vec<Vec<[f64; 2]>> {
+    match a.source.as_str() {
+        "dev" => dev_faces(n, &a.scheme, seed),
+        "synthetic" => synthetic_faces(n, &a.scheme, seed),
+        other => panic!("--faces-from dev or synthetic, not {other}"),
+    }
+}
+
+/// `n` of the AFLW2000-3D dev faces' re-annotated landmarks (every |angle| <= 99°), cycled from
+/// face `start` (modulo their count), in `scheme` (`ibug68`, or `five` from them).
+fn dev_faces(n: usize, scheme: &str, start: u64) -> Vec<Vec<[f64; 2]>> {
+    use facepose_core::shape::{Shape2, ibug68};
+    let path = facepose_files::data::data_dir().join("aflw2000/aflw2000_dev.jsonl");
+    let all = facepose_files::data::load_aflw(&path).unwrap_or_else(|e| panic!("{e}"));
+    let ibug = ibug68();
+    let kept: Vec<Vec<[f64; 2]>> = all
+        .iter()
+        .filter(|f| f.within_99)
+        .map(|f| match scheme {
+            "ibug68" => f.landmarks_reannotated.clone(),
+            "five" => {
+                let pts = f.landmarks_reannotated.iter().map(|p| Some(*p));
+                let shape = Shape2::from_options(&pts.collect::<Vec<_>>()).expect("a shape");
+                let five = shape.to_five(&ibug).expect("five points");
+                five.points().iter().map(|p| [p.x, p.y]).collect()
+            }
+            other => panic!("real faces come as ibug68 or five, not {other}"),
+        })
+        .collect();
+    let first = start as usize % kept.len();
+    kept.iter().cycle().skip(first).take(n).cloned().collect()
+}
+
+/// `n` synthetic faces in `scheme`.
+fn synthetic_faces(n: usize, scheme: &str, seed: u64) -> Vec<Vec<[f64; 2]>> {
     let (_, model) = default_model().expect("default model");
     let mut rng = StdRng::seed_from_u64(seed);
     let points = match scheme {
@@ -126,7 +169,7 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
     proto::Face {
         landmarks,
         scheme: a.scheme.clone(),
-        method: a.method.clone(),
+        method: a.wire_method().to_string(),
         camera: None,
         id: String::new(),
         landmark_style: String::new(),
@@ -136,17 +179,45 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
     }
 }
 
+impl Args {
+    /// The method as requests carry it: none (empty) for `default`.
+    fn wire_method(&self) -> &str {
+        if self.method == "default" {
+            ""
+        } else {
+            &self.method
+        }
+    }
+
+    /// A request body's JSON: `landmarks` or `faces`, the scheme, and the method unless it is
+    /// the default.
+    fn body(&self, key: &str, value: serde_json::Value) -> serde_json::Value {
+        let mut body = json!({ key: value, "scheme": self.scheme });
+        if !self.wire_method().is_empty() {
+            body["method"] = json!(self.method);
+        }
+        body
+    }
+}
+
+/// How many one-face bodies `bodies` writes (wrk cycles through them).
+const SINGLE_BODIES: usize = 491;
+
 fn bodies(a: &Args) {
     let dir = std::path::Path::new(&a.dir);
     std::fs::create_dir_all(dir).expect("bodies dir");
-    let one = &faces(1, &a.scheme, 1)[0];
-    let single = json!({"landmarks": one, "scheme": a.scheme, "method": a.method});
-    std::fs::write(dir.join("pose.json"), single.to_string()).expect("write");
-    let batch: Vec<_> = faces(a.batch, &a.scheme, 2)
+    let singles = faces(SINGLE_BODIES, a, 0);
+    let one = &singles[0];
+    let lines: Vec<String> = singles
+        .iter()
+        .map(|f| a.body("landmarks", json!(f)).to_string())
+        .collect();
+    std::fs::write(dir.join("poses.jsonl"), lines.join("\n") + "\n").expect("write");
+    let batch: Vec<_> = faces(a.batch, a, 0)
         .into_iter()
         .map(|f| json!({ "landmarks": f }))
         .collect();
-    let batch = json!({"faces": batch, "scheme": a.scheme, "method": a.method});
+    let batch = a.body("faces", json!(batch));
     std::fs::write(dir.join("batch.json"), batch.to_string()).expect("write");
     // gRPC framing: compressed flag 0, big-endian length, message.
     let req = proto::EstimateRequest {
@@ -159,7 +230,8 @@ fn bodies(a: &Args) {
     framed.extend_from_slice(&req);
     std::fs::write(dir.join("estimate.grpc"), framed).expect("write");
     println!(
-        "wrote pose.json, batch.json ({} faces), estimate.grpc to {}",
+        "wrote poses.jsonl ({SINGLE_BODIES} one-face bodies), batch.json ({} faces), \
+         estimate.grpc to {}",
         a.batch,
         dir.display()
     );
@@ -281,7 +353,7 @@ async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>)
         .await
         .expect("connect");
     let mut client = tonic::client::Grpc::new(channel);
-    let pool: Vec<Bytes> = faces(64 * a.faces, &a.scheme, seed)
+    let pool: Vec<Bytes> = faces(64 * a.faces, a, 61 * seed)
         .chunks(a.faces)
         .enumerate()
         .map(|(k, fs)| {
@@ -390,7 +462,7 @@ fn main() {
             .expect("runtime")
             .block_on(stream(a)),
         _ => eprintln!(
-            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M|default] [--faces-from dev|synthetic] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M|default] [--faces-from dev|synthetic]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
         ),
     }
 }

@@ -47,6 +47,16 @@ use crate::error::{Error, Result};
 use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
+/// How many principal components the fit moves by default in its first step, and in its robust
+/// step (at most the basis' count). On the default model (50 components) the components past
+/// these, the least energetic, bought little accuracy on AFLW2000-3D for their cost: the
+/// accuracy-speed frontier is in docs/PERFORMANCE.md (`cargo run --release --example
+/// shape_fit_frontier`). Costs move by steps: the coefficient gradient goes through the basis
+/// by 16 components at a time (32 fill two groups), a system by tiles of 4 unknowns (6 + 14
+/// fill five).
+pub const DEFAULT_FIT_COMPONENTS: usize = 32;
+pub const DEFAULT_ROBUST_COMPONENTS: usize = 14;
+
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.
 #[derive(Debug, Clone)]
 pub struct MorphableBasis {
@@ -228,7 +238,8 @@ impl MorphableBasis {
         for (j, p) in principal.iter().enumerate() {
             cols[j * flat.len()..(j + 1) * flat.len()].copy_from_slice(&flat.of(p));
         }
-        let (fit_components, robust_components) = (k, k);
+        let fit_components = k.min(DEFAULT_FIT_COMPONENTS);
+        let robust_components = k.min(DEFAULT_ROBUST_COMPONENTS);
         let mut basis = MorphableBasis {
             mean,
             components,
@@ -308,13 +319,14 @@ impl MorphableBasis {
     }
 
     /// How many principal components the fit moves (the others stay at their prior mean): by
-    /// default all.
+    /// default [`DEFAULT_FIT_COMPONENTS`] (all, for a basis of fewer).
     pub fn fit_components(&self) -> usize {
         self.fit_components
     }
 
     /// How many principal components the step after robust reweighting moves, at most
-    /// [`Self::fit_components`]: by default all.
+    /// [`Self::fit_components`]: by default [`DEFAULT_ROBUST_COMPONENTS`] (all, for a basis of
+    /// fewer).
     pub fn robust_components(&self) -> usize {
         self.robust_components.min(self.fit_components)
     }
@@ -426,9 +438,11 @@ impl MorphableBasis {
 /// Options of [`fit_morphable`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MorphOptions {
-    /// The rigid fit that starts it (the joint fit keeps none of its weights), and whether the
-    /// joint fit reweighs robustly (`robust`), what it does with hidden points (`hidden`) and
-    /// how much contour points weigh (`contour_weight`).
+    /// The rigid fit that starts it, as to hidden points (`hidden`) and how much contour points
+    /// weigh (`contour_weight`) and its iterations: the start itself takes no Tukey rounds, and
+    /// the joint fit keeps none of its weights. Whether the joint fit
+    /// reweighs robustly (`robust`). With no components or no iterations, the fit is this rigid
+    /// fit of the prior shape, as it is.
     pub rigid: FitOptions,
     /// Gauss-Newton steps of the joint problem. One step from the rigid fit is the default:
     /// on AFLW2000-3D it is more accurate than iterating to convergence, which fits the
@@ -484,20 +498,34 @@ pub fn fit_morphable(
             format!("must be positive, got {}", opts.noise_mm),
         ));
     }
+    if model.n_components() == 0 || opts.iterations == 0 {
+        let camera = fit_rigid(
+            model.prior_shape(),
+            landmarks,
+            contour,
+            visibility,
+            opts.rigid,
+        )?;
+        return Ok(MorphFit {
+            camera,
+            coefficients: model.prior_mean.clone(),
+            shape: model.prior_shape.clone(),
+        });
+    }
+    // The start: the rigid fit without its Tukey rounds. The joint fit drops the start's
+    // weights and reweighs on its own residuals; on the AFLW2000-3D dev faces the MAE of `auto`
+    // moves by 0.001° without them, for a tenth of the fit's cost (docs/PERFORMANCE.md).
+    let start_opts = FitOptions {
+        robust: false,
+        ..opts.rigid
+    };
     let start = fit_rigid(
         model.prior_shape(),
         landmarks,
         contour,
         visibility,
-        opts.rigid,
+        start_opts,
     )?;
-    if model.n_components() == 0 || opts.iterations == 0 {
-        return Ok(MorphFit {
-            camera: start,
-            coefficients: model.prior_mean.clone(),
-            shape: model.prior_shape.clone(),
-        });
-    }
     let flat = Flat::new(model.n_points());
     // The joint fit weighs points by presence (and visibility at the rigid pose when asked):
     // a shape the prior shape does not match looks like outliers to a rigid model. Robustness
@@ -1321,11 +1349,17 @@ mod tests {
         }
     }
 
-    /// Every component by default; a fit over fewer takes at least one and at most them all.
+    /// The default counts, capped by the basis; a fit over fewer takes at least one and at most
+    /// them all.
     #[test]
     fn component_counts() {
         let b = random_basis(40, 30, 11);
-        assert_eq!((b.fit_components(), b.robust_components()), (30, 30));
+        assert_eq!(
+            (b.fit_components(), b.robust_components()),
+            (30, DEFAULT_ROBUST_COMPONENTS.min(30))
+        );
+        let few = random_basis(40, 5, 11);
+        assert_eq!((few.fit_components(), few.robust_components()), (5, 5));
         let c = b.clone().with_fit_components(100, 100);
         assert_eq!((c.fit_components(), c.robust_components()), (30, 30));
         let c = b.with_fit_components(0, 9);
