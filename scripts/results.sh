@@ -110,7 +110,7 @@ EOF
   printf '\n## Pose estimation: MediaPipe landmarks\n\n'
   cmd_block "$mp_cmd"
   sed -e '/^## /d' docs/results/mediapipe.md
-  printf '\n`auto` on MediaPipe'"'"'s points is the rigid fit of the mesh itself (exact here, and what MediaPipe'"'"'s own pose does); the other methods run on the model'"'"'s ibug68 points through the mesh'"'"'s correspondence (its jaw left out), a different face from the mean shape: hence the shape fit's 2-3° even without noise, and the paper's two methods, whose constants and training views are the mean shape's, about 11°. The pitch and roll errors of the fit at 0.5-1%% noise come from faces near ±90° of yaw, where pitch and roll turn about nearly the same axis (the geodesic error stays below 0.1°).\n'
+  printf '\n`auto` on MediaPipe'"'"'s points is the rigid fit of the mesh itself (exact here, and what MediaPipe'"'"'s own pose does); the other methods run on the model'"'"'s ibug68 points through the mesh'"'"'s correspondence (its jaw left out), a different face from the mean shape: hence the shape fit'"'"'s 2-3° even without noise, and the paper'"'"'s two methods, whose constants and training views are the mean shape'"'"'s, about 11°. The pitch and roll errors of the fit at 0.5-1%% noise come from faces near ±90° of yaw, where pitch and roll turn about nearly the same axis (the geodesic error stays below 0.1°).\n'
   printf '\n## Tracking: smoothing with and without the uncertainty\n\n'
   cmd_block "$track_cmd"
   sed -e '/^## /d' docs/results/tracking.md
