@@ -103,7 +103,7 @@ pub fn raw_spread(
     let q_xy = m[(0, 0)] + m[(1, 1)];
     let qy = qy - sq.xy().dot(&sy) / sw;
     let yy = yy - sy.norm_squared() / sw;
-    if !(q_xy > 0.0) {
+    if q_xy.is_nan() || q_xy <= 0.0 {
         return None;
     }
     let s = qy / q_xy;
