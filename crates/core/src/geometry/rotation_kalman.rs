@@ -349,6 +349,18 @@ mod tests {
         }
         let bad = Rotation3::from_matrix_unchecked(r.matrix().map(|_| f64::NAN));
         assert!(f.filter(&bad, None, 0.1).rotation.matrix()[(0, 0)].is_nan());
+        // Absurd time steps (a client's timestamps) keep the output finite, and the track
+        // comes back to the measurements.
+        for dt in [1e12, 1e300] {
+            for _ in 0..10 {
+                let out = f.filter(&r, Some(&iso(1.0)), dt).rotation;
+                assert!(out.matrix().iter().all(|v| v.is_finite()), "{dt}");
+            }
+        }
+        for _ in 0..20 {
+            f.filter(&r, Some(&iso(1.0)), 1.0 / 30.0);
+        }
+        assert!(geodesic_deg(&f.filter(&r, Some(&iso(1.0)), 1.0 / 30.0).rotation, &r) < 0.1);
         let not_cov = Matrix3::from_diagonal(&Vector3::new(-1.0, 1.0, 1.0));
         assert_relative_eq!(
             f.filter(&r, Some(&not_cov), 0.1).rotation,
