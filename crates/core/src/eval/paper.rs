@@ -711,89 +711,13 @@ pub fn paper_markdown(report: &PaperReport) -> String {
     s
 }
 
-/// The robustness tables: MAE (mean of yaw and pitch) per entry and condition, noise levels in
-/// one table and missing points in the other; failed estimates in parentheses.
-pub fn robustness_markdown(report: &PaperReport) -> String {
-    let mut out = String::new();
-    for noise in [true, false] {
-        let conds: Vec<Perturbation> = if noise {
-            report
-                .options
-                .noise
-                .iter()
-                .map(|&f| Perturbation::Noise(f))
-                .collect()
-        } else {
-            report
-                .options
-                .missing
-                .iter()
-                .map(|&k| Perturbation::Missing(k))
-                .collect()
-        };
-        let head: Vec<String> = conds
-            .iter()
-            .map(|c| match c {
-                Perturbation::Noise(f) => format!("σ {}%", f * 100.0),
-                Perturbation::Missing(k) => format!("{k} missing"),
-            })
-            .collect();
-        out.push_str(&format!(
-            "| method | {} |\n|---|{}\n",
-            head.join(" | "),
-            "---|".repeat(head.len())
-        ));
-        let mut labels: Vec<&str> = Vec::new();
-        for r in &report.robustness {
-            if !labels.contains(&r.label.as_str()) {
-                labels.push(&r.label);
-            }
-        }
-        for l in labels {
-            let cells: Vec<String> = conds
-                .iter()
-                .map(|c| {
-                    report
-                        .robustness
-                        .iter()
-                        .find(|r| r.label == l && r.perturbation == *c)
-                        .map_or("".into(), |r| {
-                            let mut cell = f2(r.mae);
-                            if let Perturbation::Missing(k) = r.perturbation
-                                && r.dropped != k
-                            {
-                                cell.push_str(&format!(" [{} dropped]", r.dropped));
-                            }
-                            if r.failures > 0 {
-                                cell.push_str(&format!(" ({} failed)", r.failures));
-                            }
-                            cell
-                        })
-                })
-                .collect();
-            out.push_str(&format!("| {l} | {} |\n", cells.join(" | ")));
-        }
-        out.push('\n');
-    }
-    out
-}
-
-/// The coverage of the uncertainty's 90% intervals per entry and robustness condition: yaw /
-/// pitch, percent.
-pub fn coverage_markdown(report: &PaperReport) -> String {
-    let conds: Vec<Perturbation> = report
-        .options
-        .noise
-        .iter()
-        .map(|&f| Perturbation::Noise(f))
-        .chain(
-            report
-                .options
-                .missing
-                .iter()
-                .map(|&k| Perturbation::Missing(k)),
-        )
-        .collect();
+/// A table of the robustness rows: one line per entry (in the report's order), one column per
+/// condition of `conds`, each cell `cell(row)` (empty where there is no row).
+fn conditions_table(
+    report: &PaperReport,
+    conds: &[Perturbation],
+    cell: impl Fn(&RobustnessRow) -> String,
+) -> String {
     let head: Vec<String> = conds
         .iter()
         .map(|c| match c {
@@ -820,20 +744,68 @@ pub fn coverage_markdown(report: &PaperReport) -> String {
                     .robustness
                     .iter()
                     .find(|r| r.label == l && r.perturbation == *c)
-                    .map_or("".into(), |r| {
-                        if r.coverage_yaw.is_nan() {
-                            "-".into()
-                        } else {
-                            format!(
-                                "{:.0} / {:.0}",
-                                100.0 * r.coverage_yaw,
-                                100.0 * r.coverage_pitch
-                            )
-                        }
-                    })
+                    .map_or(String::new(), &cell)
             })
             .collect();
         out.push_str(&format!("| {l} | {} |\n", cells.join(" | ")));
     }
     out
+}
+
+fn noise_conditions(report: &PaperReport) -> Vec<Perturbation> {
+    report
+        .options
+        .noise
+        .iter()
+        .map(|&f| Perturbation::Noise(f))
+        .collect()
+}
+
+fn missing_conditions(report: &PaperReport) -> Vec<Perturbation> {
+    report
+        .options
+        .missing
+        .iter()
+        .map(|&k| Perturbation::Missing(k))
+        .collect()
+}
+
+/// The robustness tables: MAE (mean of yaw and pitch) per entry and condition, noise levels in
+/// one table and missing points in the other; failed estimates in parentheses.
+pub fn robustness_markdown(report: &PaperReport) -> String {
+    let mut out = String::new();
+    for conds in [noise_conditions(report), missing_conditions(report)] {
+        out.push_str(&conditions_table(report, &conds, |r| {
+            let mut cell = f2(r.mae);
+            if let Perturbation::Missing(k) = r.perturbation
+                && r.dropped != k
+            {
+                cell.push_str(&format!(" [{} dropped]", r.dropped));
+            }
+            if r.failures > 0 {
+                cell.push_str(&format!(" ({} failed)", r.failures));
+            }
+            cell
+        }));
+        out.push('\n');
+    }
+    out
+}
+
+/// The coverage of the uncertainty's 90% intervals per entry and robustness condition: yaw /
+/// pitch, percent.
+pub fn coverage_markdown(report: &PaperReport) -> String {
+    let mut conds = noise_conditions(report);
+    conds.extend(missing_conditions(report));
+    conditions_table(report, &conds, |r| {
+        if r.coverage_yaw.is_nan() {
+            "-".into()
+        } else {
+            format!(
+                "{:.0} / {:.0}",
+                100.0 * r.coverage_yaw,
+                100.0 * r.coverage_pitch
+            )
+        }
+    })
 }
