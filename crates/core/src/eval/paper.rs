@@ -374,10 +374,9 @@ impl Acc {
         self.ae_pitch += dp.abs();
         self.geodesic += geodesic_deg(&e.rotation, &truth.to_rotation());
         if let Some(u) = &e.uncertainty {
-            let half = |k: usize| 0.5 * (u.interval90[k][1] - u.interval90[k][0]);
             self.with_interval += 1;
-            self.covered_pitch += usize::from(dp.abs() <= half(0));
-            self.covered_yaw += usize::from(dy.abs() <= half(1));
+            self.covered_pitch += usize::from(dp.abs() <= u.half_width(0));
+            self.covered_yaw += usize::from(dy.abs() <= u.half_width(1));
         }
         Some(0.5 * (dy.abs() + dp.abs()))
     }

@@ -157,8 +157,7 @@ pub struct CoverageRow {
 
 /// Whether the true angle `k` of `s` is inside `u`'s interval (wrapped to ±180°).
 fn covered(s: &Sample, u: &Uncertainty, k: usize) -> bool {
-    let half = 0.5 * (u.interval90[k][1] - u.interval90[k][0]);
-    s.error(k) <= half
+    s.error(k) <= u.half_width(k)
 }
 
 /// The rows of [`CoverageRow`], one per (asked method, source) that has predictions, in the

@@ -114,6 +114,14 @@ pub struct Uncertainty {
     pub turn_cov: Matrix3<f64>,
 }
 
+impl Uncertainty {
+    /// The half-width of angle `k`'s 90% interval (pitch, yaw, roll), degrees: an error of at
+    /// most this is inside it.
+    pub fn half_width(&self, k: usize) -> f64 {
+        0.5 * (self.interval90[k][1] - self.interval90[k][0])
+    }
+}
+
 /// The features of one angle (see the module docs).
 pub fn features(raw_sd: f64, yaw_deg: f64, misfit: f64) -> [f64; N_FEATURES] {
     let u = (yaw_deg.abs() / 90.0).min(1.0);
@@ -398,6 +406,15 @@ mod tests {
     use rand::{SeedableRng, rngs::StdRng};
     use rand_distr::{Distribution, Normal};
 
+    /// The share of `samples` whose error is inside `m`'s interval.
+    fn coverage(m: &AngleModel, samples: &[([f64; N_FEATURES], f64)]) -> f64 {
+        let inside = samples
+            .iter()
+            .filter(|(x, e)| e.abs() <= m.half_width(x))
+            .count();
+        inside as f64 / samples.len() as f64
+    }
+
     /// Errors drawn with a known `σ = 0.5 · raw_sd^1.5 · e^u · misfit^0.5`: the fit finds the
     /// law and the intervals cover 90% of fresh draws.
     #[test]
@@ -435,11 +452,7 @@ mod tests {
         }
         assert!((m.multiplier - Z90).abs() < 0.1, "{}", m.multiplier);
         let fresh = draw(4000);
-        let covered = fresh
-            .iter()
-            .filter(|(x, e)| e.abs() <= m.half_width(x))
-            .count() as f64
-            / fresh.len() as f64;
+        let covered = coverage(&m, &fresh);
         assert!((0.88..=0.92).contains(&covered), "{covered}");
     }
 
@@ -459,11 +472,7 @@ mod tests {
         };
         let m = fit_angle(&draw(5000)).unwrap();
         let fresh = draw(5000);
-        let covered = fresh
-            .iter()
-            .filter(|(x, e)| e.abs() <= m.half_width(x))
-            .count() as f64
-            / fresh.len() as f64;
+        let covered = coverage(&m, &fresh);
         assert!((0.88..=0.92).contains(&covered), "{covered}");
     }
 
