@@ -160,9 +160,96 @@ pub fn geodesic_deg(a: &Rotation3<f64>, b: &Rotation3<f64>) -> f64 {
         .to_degrees()
 }
 
+// How the angles move with the rotation: what propagates a rotation's uncertainty to them.
+
+/// `d(atan2(a, b))` for the changes `da`, `db`, degrees.
+fn datan2(a: f64, b: f64, da: f64, db: f64) -> f64 {
+    (b * da - a * db) / (a * a + b * b) * 180.0 / std::f64::consts::PI
+}
+
+/// The gradient of yaw (degrees) with respect to the small turn `δ` (radians):
+/// yaw = atan2(−R₀₂, hypot(R₀₀, R₀₁)) ([`EulerAngles::from_rotation`]), `dR = [δ]ₓ R`.
+pub fn yaw_turn_gradient(r: &Rotation3<f64>) -> Vector3<f64> {
+    let m = r.matrix();
+    let cy = m[(0, 0)].hypot(m[(0, 1)]);
+    Vector3::from_fn(|k, _| {
+        let d = turn_derivative(m, k);
+        let dcy = if cy > 0.0 {
+            (m[(0, 0)] * d[(0, 0)] + m[(0, 1)] * d[(0, 1)]) / cy
+        } else {
+            0.0
+        };
+        datan2(-m[(0, 2)], cy, -d[(0, 2)], dcy)
+    })
+}
+
+/// `[e_k]ₓ R`: the derivative of `exp([δ]ₓ) R` along `δ = e_k`.
+fn turn_derivative(m: &Matrix3<f64>, k: usize) -> Matrix3<f64> {
+    let mut e = Vector3::zeros();
+    e[k] = 1.0;
+    e.cross_matrix() * m
+}
+
+/// The derivative of (pitch, yaw, roll) in degrees with respect to a small turn `δ` (radians)
+/// applied as `exp([δ]ₓ) R`, differentiating [`EulerAngles::from_rotation`]'s formulas;
+/// `None` at gimbal lock (|yaw| = 90°), where pitch and roll are not separable.
+pub fn angle_turn_jacobian(r: &Rotation3<f64>) -> Option<Matrix3<f64>> {
+    let m = r.matrix();
+    let cy = m[(0, 0)].hypot(m[(0, 1)]);
+    if cy < 1e-9 {
+        return None;
+    }
+    let mut j = Matrix3::zeros();
+    for k in 0..3 {
+        let d = turn_derivative(m, k);
+        let dcy = (m[(0, 0)] * d[(0, 0)] + m[(0, 1)] * d[(0, 1)]) / cy;
+        j[(0, k)] = datan2(m[(1, 2)], m[(2, 2)], d[(1, 2)], d[(2, 2)]);
+        j[(1, k)] = datan2(-m[(0, 2)], cy, -d[(0, 2)], dcy);
+        j[(2, k)] = datan2(m[(0, 1)], m[(0, 0)], d[(0, 1)], d[(0, 0)]);
+    }
+    Some(j)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The analytic derivative of the angles matches central differences of the decomposition.
+    #[test]
+    fn angle_jacobian_matches_finite_differences() {
+        for (y, p, r) in [
+            (20.0, -10.0, 5.0),
+            (-75.0, 30.0, -40.0),
+            (5.0, 170.0, 100.0),
+        ] {
+            let rot = EulerAngles::new(y, p, r).unwrap().to_rotation();
+            let j = angle_turn_jacobian(&rot).unwrap();
+            let angles = |r: &Rotation3<f64>| {
+                let a = EulerAngles::from_rotation(r);
+                Vector3::new(a.pitch, a.yaw, a.roll)
+            };
+            for k in 0..3 {
+                let mut axis = Vector3::zeros();
+                axis[k] = 1e-6;
+                let (plus, minus) = (
+                    angles(&(Rotation3::new(axis) * rot)),
+                    angles(&(Rotation3::new(-axis) * rot)),
+                );
+                for a in 0..3 {
+                    let num = wrap_deg(plus[a] - minus[a]) / 2e-6;
+                    assert!(
+                        (j[(a, k)] - num).abs() < 1e-4 * (1.0 + num.abs()),
+                        "{a} {k}: {} vs {num}",
+                        j[(a, k)]
+                    );
+                }
+                assert!((yaw_turn_gradient(&rot)[k] - j[(1, k)]).abs() < 1e-9);
+            }
+        }
+        let lock = EulerAngles::new(90.0, 10.0, 0.0).unwrap().to_rotation();
+        assert!(angle_turn_jacobian(&lock).is_none());
+    }
+
     use approx::assert_relative_eq;
     use proptest::prelude::*;
 

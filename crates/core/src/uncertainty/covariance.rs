@@ -17,6 +17,7 @@
 
 use nalgebra::{Matrix3, Matrix4, Rotation3, Vector2, Vector3};
 
+use crate::geometry::convention::{angle_turn_jacobian, yaw_turn_gradient};
 use crate::geometry::image_to_plane;
 use crate::shape::Shape2;
 
@@ -135,7 +136,7 @@ pub fn raw_spread(
     let sigma2 = sse / dof;
     let inv = jtj.try_inverse()?;
     let cov_delta: Matrix3<f64> = inv.fixed_view::<3, 3>(0, 0) * sigma2;
-    let sd_deg = match angle_jacobian(rotation) {
+    let sd_deg = match angle_turn_jacobian(rotation) {
         Some(a) => {
             let cov = a * cov_delta * a.transpose();
             [0, 1, 2].map(|k| {
@@ -149,7 +150,7 @@ pub fn raw_spread(
         }
         // At gimbal lock pitch and roll are not separable: only yaw is determined.
         None => {
-            let dyaw = yaw_gradient(rotation);
+            let dyaw = yaw_turn_gradient(rotation);
             let v = (dyaw.transpose() * cov_delta * dyaw)[0];
             [
                 f64::INFINITY,
@@ -165,54 +166,6 @@ pub fn raw_spread(
         turn_cov: cov_delta,
         misfit: f64::NAN,
     })
-}
-
-/// `d(atan2(a, b))` for the changes `da`, `db`, degrees.
-fn datan2(a: f64, b: f64, da: f64, db: f64) -> f64 {
-    (b * da - a * db) / (a * a + b * b) * 180.0 / std::f64::consts::PI
-}
-
-/// The gradient of yaw (degrees) with respect to the small turn `δ` (radians):
-/// yaw = atan2(−R₀₂, hypot(R₀₀, R₀₁)) ([`crate::geometry::EulerAngles::from_rotation`]), `dR = [δ]ₓ R`.
-fn yaw_gradient(r: &Rotation3<f64>) -> Vector3<f64> {
-    let m = r.matrix();
-    let cy = m[(0, 0)].hypot(m[(0, 1)]);
-    Vector3::from_fn(|k, _| {
-        let d = turn_derivative(m, k);
-        let dcy = if cy > 0.0 {
-            (m[(0, 0)] * d[(0, 0)] + m[(0, 1)] * d[(0, 1)]) / cy
-        } else {
-            0.0
-        };
-        datan2(-m[(0, 2)], cy, -d[(0, 2)], dcy)
-    })
-}
-
-/// `[e_k]ₓ R`: the derivative of `exp([δ]ₓ) R` along `δ = e_k`.
-fn turn_derivative(m: &Matrix3<f64>, k: usize) -> Matrix3<f64> {
-    let mut e = Vector3::zeros();
-    e[k] = 1.0;
-    e.cross_matrix() * m
-}
-
-/// The derivative of (pitch, yaw, roll) in degrees with respect to a small turn `δ` (radians)
-/// applied as `exp([δ]ₓ) R`, differentiating [`crate::geometry::EulerAngles::from_rotation`]'s formulas;
-/// `None` at gimbal lock (|yaw| = 90°), where pitch and roll are not separable.
-fn angle_jacobian(r: &Rotation3<f64>) -> Option<Matrix3<f64>> {
-    let m = r.matrix();
-    let cy = m[(0, 0)].hypot(m[(0, 1)]);
-    if cy < 1e-9 {
-        return None;
-    }
-    let mut j = Matrix3::zeros();
-    for k in 0..3 {
-        let d = turn_derivative(m, k);
-        let dcy = (m[(0, 0)] * d[(0, 0)] + m[(0, 1)] * d[(0, 1)]) / cy;
-        j[(0, k)] = datan2(m[(1, 2)], m[(2, 2)], d[(1, 2)], d[(2, 2)]);
-        j[(1, k)] = datan2(-m[(0, 2)], cy, -d[(0, 2)], dcy);
-        j[(2, k)] = datan2(m[(0, 1)], m[(0, 0)], d[(0, 1)], d[(0, 0)]);
-    }
-    Some(j)
 }
 
 #[cfg(test)]
@@ -236,43 +189,6 @@ mod tests {
         assert_eq!(s.sd_deg, [MIN_RAW_SD_DEG; 3]);
         assert!(s.sigma_px < 1e-5, "{s:?}");
         assert_eq!(s.points, 10);
-    }
-
-    /// The analytic derivative of the angles matches central differences of the decomposition.
-    #[test]
-    fn angle_jacobian_matches_finite_differences() {
-        use crate::geometry::convention::wrap_deg;
-        for (y, p, r) in [
-            (20.0, -10.0, 5.0),
-            (-75.0, 30.0, -40.0),
-            (5.0, 170.0, 100.0),
-        ] {
-            let rot = EulerAngles::new(y, p, r).unwrap().to_rotation();
-            let j = angle_jacobian(&rot).unwrap();
-            let angles = |r: &Rotation3<f64>| {
-                let a = EulerAngles::from_rotation(r);
-                Vector3::new(a.pitch, a.yaw, a.roll)
-            };
-            for k in 0..3 {
-                let mut axis = Vector3::zeros();
-                axis[k] = 1e-6;
-                let (plus, minus) = (
-                    angles(&(Rotation3::new(axis) * rot)),
-                    angles(&(Rotation3::new(-axis) * rot)),
-                );
-                for a in 0..3 {
-                    let num = wrap_deg(plus[a] - minus[a]) / 2e-6;
-                    assert!(
-                        (j[(a, k)] - num).abs() < 1e-4 * (1.0 + num.abs()),
-                        "{a} {k}: {} vs {num}",
-                        j[(a, k)]
-                    );
-                }
-                assert!((yaw_gradient(&rot)[k] - j[(1, k)]).abs() < 1e-9);
-            }
-        }
-        let lock = EulerAngles::new(90.0, 10.0, 0.0).unwrap().to_rotation();
-        assert!(angle_jacobian(&lock).is_none());
     }
 
     #[test]
