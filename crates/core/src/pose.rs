@@ -5,7 +5,7 @@ use std::borrow::Cow;
 use std::fmt;
 use std::str::FromStr;
 
-use nalgebra::{Rotation3, Vector2, Vector3};
+use nalgebra::{Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
@@ -14,7 +14,7 @@ use crate::estimate::geometric::estimate_geometric;
 use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
 use crate::estimate::perspective::{Intrinsics, refine_perspective};
 use crate::geometry::EulerAngles;
-use crate::geometry::image_to_plane;
+use crate::geometry::moments::Moments;
 use crate::model::{FaceMesh, MeshScheme, PoseModel, Subset, SubsetMap};
 use crate::shape::{Scheme, Shape2};
 use crate::uncertainty::{PointClass, RawSpread, Uncertainty, raw_spread};
@@ -560,9 +560,9 @@ fn estimate_mesh(
 }
 
 /// The RMS reprojection error at the best scale and translation for a fixed rotation, over the
-/// projected distance between the eye centres, and the misfit ([`Estimate::misfit`]). One pass of sums, no allocation:
-/// with `q = (R X)ₓᵧ`, the least-squares scale is `s = cov(q, y) / var(q)` and the residual
-/// energy `Σ|y - ȳ|² - s² Σ|q - q̄|²`.
+/// projected distance between the eye centres, and the misfit ([`Estimate::misfit`]), from the
+/// moments of the present points (one pass, no allocation): at the best scale `s` the residual
+/// energy is `Σ|y - ȳ|² - s Σ (q - q̄)·(y - ȳ)`, `q = (R X)ₓᵧ`.
 fn residual(
     mean: &[Vector3<f64>],
     lm: &Shape2,
@@ -570,35 +570,19 @@ fn residual(
     eye_l: &[usize],
     eye_r: &[usize],
 ) -> (f64, f64) {
-    // Sums taken relative to the first present point, so that image coordinates far from the
-    // origin do not cancel away the residual.
-    let Some((i0, p0)) = lm.iter_present().next() else {
+    let m = Moments::of_landmarks(mean, lm, None);
+    if m.n == 0 {
         return (f64::INFINITY, f64::INFINITY);
-    };
-    let (q0, y0) = ((r * mean[i0]).xy(), Vector2::new(p0.x, -p0.y));
-    let (mut n, mut sq, mut sy) = (0.0, Vector2::zeros(), Vector2::zeros());
-    let (mut qq, mut yy, mut qy) = (0.0, 0.0, 0.0);
-    for (i, p) in lm.iter_present() {
-        let q = (r * mean[i]).xy() - q0;
-        let y = image_to_plane(p) - y0;
-        n += 1.0;
-        sq += q;
-        sy += y;
-        qq += q.norm_squared();
-        yy += y.norm_squared();
-        qy += q.dot(&y);
     }
-    let den = qq - sq.norm_squared() / n;
-    let num = qy - sq.dot(&sy) / n;
-    let var_y = yy - sy.norm_squared() / n;
-    let s = if den > 0.0 { num / den } else { 0.0 };
-    let sse = (var_y - s * num).max(0.0);
+    let var_y = m.yy;
+    // No spread of the rotated points in the image: no scale, the whole spread is residual.
+    let (s, sse) = m.best_scale(r).unwrap_or((0.0, var_y));
     let eye = |idx: &[usize]| {
         idx.iter().map(|&i| mean[i]).sum::<Vector3<f64>>() / idx.len().max(1) as f64
     };
     let iod = s.abs() * (r * (eye(eye_r) - eye(eye_l))).xy().norm();
     let residual = if iod > 0.0 {
-        (sse / n).sqrt() / iod
+        (sse / m.n as f64).sqrt() / iod
     } else {
         f64::INFINITY
     };
@@ -613,7 +597,8 @@ fn residual(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::WeakPerspective;
+    use crate::geometry::{WeakPerspective, image_to_plane};
+    use nalgebra::Vector2;
 
     fn face() -> Vec<Vector3<f64>> {
         vec![

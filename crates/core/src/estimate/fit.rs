@@ -16,7 +16,9 @@
 //!    2D-style annotations put on the visible outline instead of their 3D place), and the fit is
 //!    redone until the visible set settles. Visible contour points weigh `contour_weight`.
 
-use nalgebra::{Matrix3, Matrix3x2, Matrix4, Rotation3, Vector2, Vector3, Vector4};
+use nalgebra::{Rotation3, Vector2, Vector3};
+
+use crate::geometry::moments::Moments;
 
 use super::visibility_map::VisibilityMap;
 use crate::error::{Error, Result};
@@ -212,96 +214,6 @@ fn nearer_frontal_branch(
     }
 }
 
-/// Weighted, centred first and second moments of the model points and the landmarks: all the
-/// least-squares cost of a weak-perspective camera depends on, so that the iterations of a fit
-/// cost O(1) after one pass over the points.
-#[derive(Debug, Clone, Copy)]
-struct Moments {
-    /// Sum of the weights.
-    sw: f64,
-    /// Weighted centroids of the model points and of the landmarks.
-    cx: Vector3<f64>,
-    cy: Vector2<f64>,
-    /// `Σ w dx dxᵀ` of the centred model points.
-    xx: Matrix3<f64>,
-    /// `Σ w dx dyᵀ`, centred model points against centred landmarks.
-    xy: Matrix3x2<f64>,
-    /// `Σ w |dy|²` of the centred landmarks.
-    yy: f64,
-}
-
-impl Moments {
-    /// One pass over the points with a non-zero weight (two: the centroids first, so that
-    /// image coordinates far from the origin do not cancel away the spread).
-    fn new(model: &[Vector3<f64>], y: &[Vector2<f64>], w: &[f64]) -> Moments {
-        let (mut sw, mut sx, mut sy) = (0.0, Vector3::zeros(), Vector2::zeros());
-        for ((x, p), &wi) in model.iter().zip(y).zip(w) {
-            if wi > 0.0 {
-                sw += wi;
-                sx += wi * x;
-                sy += wi * p;
-            }
-        }
-        let (cx, cy) = (sx / sw, sy / sw);
-        let (mut xx, mut xy, mut yy) = (Matrix3::zeros(), Matrix3x2::zeros(), 0.0);
-        for ((x, p), &wi) in model.iter().zip(y).zip(w) {
-            if wi > 0.0 {
-                let (dx, dp) = (x - cx, p - cy);
-                let wdx = wi * dx;
-                xx += wdx * dx.transpose();
-                xy += wdx * dp.transpose();
-                yy += wi * dp.norm_squared();
-            }
-        }
-        Moments {
-            sw,
-            cx,
-            cy,
-            xx,
-            xy,
-            yy,
-        }
-    }
-
-    /// The translation that is optimal for `(r, s)`: centroid onto centroid.
-    fn translation(&self, r: &Rotation3<f64>, s: f64) -> Vector2<f64> {
-        self.cy - s * (r * self.cx).xy()
-    }
-
-    /// `Σ w |s (R x)ₓᵧ + t - y|²` at the optimal translation, the `JᵀJ` and `Jᵀr` of the
-    /// Gauss-Newton step in `(ω, s)` (the translation decouples once the points are centred),
-    /// from the moments alone.
-    ///
-    /// With `Q = R M Rᵀ` (`M` the model's second moment), `eₓ, e_y` the columns of `Σ w dx dyᵀ`
-    /// and `rᵢ` the rows of `R`: the cost is `Σw|dy|² - 2 s (r₁·eₓ + r₂·e_y) + s² (Q₁₁ + Q₂₂)`;
-    /// the Jacobian rows of a point, `(0, s q_z, -s q_y, q_x)` and `(-s q_z, 0, s q_x, q_y)` with
-    /// `q = R dx`, sum to the terms below.
-    fn normal_equations(&self, r: &Rotation3<f64>, s: f64) -> (f64, Matrix4<f64>, Vector4<f64>) {
-        let m = r.matrix();
-        let q = m * self.xx * m.transpose();
-        let e = m * self.xy; // row i: rᵢ·eₓ, rᵢ·e_y
-        let (q11, q22, q33) = (q[(0, 0)], q[(1, 1)], q[(2, 2)]);
-        let (q13, q23) = (q[(0, 2)], q[(1, 2)]);
-        let fit = e[(0, 0)] + e[(1, 1)];
-        let cost = self.yy - 2.0 * s * fit + s * s * (q11 + q22);
-        let s2 = s * s;
-        #[rustfmt::skip]
-        let jtj = Matrix4::new(
-            s2 * q33,  0.0,       -s2 * q13,         -s * q23,
-            0.0,       s2 * q33,  -s2 * q23,         s * q13,
-            -s2 * q13, -s2 * q23, s2 * (q11 + q22),  0.0,
-            -s * q23,  s * q13,   0.0,               q11 + q22,
-        );
-        let g = Vector4::new(
-            s * e[(2, 1)] - s2 * q23,
-            s2 * q13 - s * e[(2, 0)],
-            s * (e[(1, 0)] - e[(0, 1)]),
-            s * (q11 + q22) - fit,
-        );
-        (cost, jtj, g)
-    }
-}
-
 /// The closed-form start: the rotation and scale of the nearest scaled orthographic camera to
 /// the least-squares affine one.
 fn affine_start(m: &Moments) -> Result<(Rotation3<f64>, f64)> {
@@ -442,6 +354,15 @@ pub(crate) fn tukey_weights(
         return false;
     }
     let mid = scratch.len() / 2;
+    // Nothing stands out when the largest residual is within 2.5 σ ≥ 2.5 · 1.4826 · median,
+    // that is when the median's square is at least `max / 3.7065²`: true when at most `mid`
+    // squares lie below that (with a margin against rounding), which a count tells without
+    // the selection of the median (the common case of clean landmarks).
+    let max = scratch.iter().fold(0.0f64, |a, &b| a.max(b));
+    let enough = max / (2.5f64 * 1.4826).powi(2) * (1.0 + 1e-9);
+    if scratch.iter().filter(|&&e| e < enough).count() <= mid {
+        return false;
+    }
     let median = scratch.select_nth_unstable_by(mid, f64::total_cmp).1.sqrt();
     let sigma = (1.4826 * median).max(floor);
     let limit = (2.5 * sigma).powi(2);

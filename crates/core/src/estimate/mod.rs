@@ -5,7 +5,7 @@
 //! trained model ([`crate::model`]) holds those parameters, and [`crate::pose`] is the one entry
 //! point that runs a method with a model: this module knows no model.
 
-mod dense;
+pub(crate) mod dense;
 pub mod fit;
 pub mod geometric;
 pub mod morph_fit;

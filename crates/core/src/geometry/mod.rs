@@ -1,7 +1,8 @@
-//! Rotations, the angle convention, projection, Procrustes alignment and temporal smoothing of
-//! rotations.
+//! Rotations, the angle convention, projection, the moments of a weak-perspective fit,
+//! Procrustes alignment and temporal smoothing of rotations.
 
 pub mod convention;
+pub mod moments;
 pub mod procrustes;
 pub mod projection;
 pub mod rotation_kalman;

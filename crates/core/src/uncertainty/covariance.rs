@@ -15,10 +15,10 @@
 //! standard deviations. At |yaw| near 90° pitch and roll turn about nearly the same axis and
 //! their derivatives grow without bound, as the raw figure then says.
 
-use nalgebra::{Matrix3, Matrix4, Rotation3, Vector2, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 use crate::geometry::convention::{angle_turn_jacobian, yaw_turn_gradient};
-use crate::geometry::image_to_plane;
+use crate::geometry::moments::Moments;
 use crate::shape::Shape2;
 
 /// Smallest raw standard deviation, degrees: exact landmarks give zero, which no calibration
@@ -56,83 +56,17 @@ pub fn raw_spread(
     if shape.len() != landmarks.len() || weights.is_some_and(|w| w.len() != shape.len()) {
         return None;
     }
-    // One pass of weighted sums of q = R X and y, relative to the first point (so that image
-    // coordinates far from the origin do not cancel away the residual).
-    let (i0, y0) = landmarks.iter_present().next()?;
-    let (q0, y0) = (rotation * shape[i0], image_to_plane(y0));
-    let (mut sw, mut points) = (0.0, 0usize);
-    // Σw q, Σw q qᵀ (xx, yy, zz, xy, xz, yz), Σw y, Σw |y|², Σw qₓᵧ·y: scalars, so that the
-    // loop is a few dozen flops a point.
-    let (mut sq, mut m2, mut sy) = ([0.0; 3], [0.0; 6], [0.0; 2]);
-    let (mut yy, mut qy) = (0.0, 0.0);
-    for (i, p) in landmarks.iter_present() {
-        let w = weights.map_or(1.0, |w| w[i]);
-        if !(w > 0.0 && w.is_finite()) {
-            continue;
-        }
-        let q = rotation * shape[i] - q0;
-        let y = image_to_plane(p) - y0;
-        sw += w;
-        points += 1;
-        let (wx, wy, wz) = (w * q.x, w * q.y, w * q.z);
-        sq[0] += wx;
-        sq[1] += wy;
-        sq[2] += wz;
-        m2[0] += wx * q.x;
-        m2[1] += wy * q.y;
-        m2[2] += wz * q.z;
-        m2[3] += wx * q.y;
-        m2[4] += wx * q.z;
-        m2[5] += wy * q.z;
-        sy[0] += w * y.x;
-        sy[1] += w * y.y;
-        yy += w * (y.x * y.x + y.y * y.y);
-        qy += wx * y.x + wy * y.y;
-    }
-    let sq = Vector3::from(sq);
-    let sy = Vector2::from(sy);
-    let qq = Matrix3::new(
-        m2[0], m2[3], m2[4], m2[3], m2[1], m2[5], m2[4], m2[5], m2[2],
-    );
-    let dof = 2.0 * sw - 6.0;
+    // The weighted moments of the shape against the landmarks, in the model frame: the fit's
+    // residual and normal equations at this rotation follow from them.
+    let m = Moments::of_landmarks(shape, landmarks, weights);
+    let (points, dof) = (m.n, 2.0 * m.sw - 6.0);
     if points < 4 || dof <= 0.0 {
         return None;
     }
-    // Centred moments: the translation's least squares is the centroids' difference, and with
-    // centred points its normal equations separate from the others'.
-    let m = qq - sq * sq.transpose() / sw;
-    let q_xy = m[(0, 0)] + m[(1, 1)];
-    let qy = qy - sq.xy().dot(&sy) / sw;
-    let yy = yy - sy.norm_squared() / sw;
-    if q_xy.is_nan() || q_xy <= 0.0 {
-        return None;
-    }
-    let s = qy / q_xy;
-    let sse = (yy - s * qy).max(0.0);
-    // Normal equations of (δ, s): Σ w Jᵢᵀ Jᵢ with the rows of point i
-    // [0, s z, −s y, x] and [−s z, 0, s x, y] (d(s (exp([δ]ₓ) q)ₓᵧ)/dδ = −s [q]ₓ, first two
-    // rows; then q for s), summed through the centred moments.
-    let (xx, yy_, zz) = (m[(0, 0)], m[(1, 1)], m[(2, 2)]);
-    let (xz, yz) = (m[(0, 2)], m[(1, 2)]);
-    let s2 = s * s;
-    let jtj = Matrix4::new(
-        s2 * zz,
-        0.0,
-        -s2 * xz,
-        -s * yz,
-        0.0,
-        s2 * zz,
-        -s2 * yz,
-        s * xz,
-        -s2 * xz,
-        -s2 * yz,
-        s2 * (xx + yy_),
-        0.0,
-        -s * yz,
-        s * xz,
-        0.0,
-        xx + yy_,
-    );
+    // The best scale and translation for the rotation, and the normal equations of (δ, s)
+    // there (the translation separates from them once the points are centred).
+    let (s, sse) = m.best_scale(rotation)?;
+    let (_, jtj, _) = m.normal_equations(rotation, s);
     let sigma2 = sse / dof;
     let inv = jtj.try_inverse()?;
     let cov_delta: Matrix3<f64> = inv.fixed_view::<3, 3>(0, 0) * sigma2;
@@ -173,6 +107,7 @@ mod tests {
     use super::*;
     use crate::geometry::{EulerAngles, WeakPerspective};
     use crate::test_faces::face;
+    use nalgebra::Vector2;
     use rand::{SeedableRng, rngs::StdRng};
     use rand_distr::{Distribution, Normal};
 
