@@ -107,7 +107,9 @@ pub fn fit_rigid(
         }
     }
     let mut weights = base.clone();
-    let moments = Moments::new(model, &y, &weights);
+    let base_moments = Moments::new(model, &y, &weights);
+    // The moments of the current `weights`.
+    let mut moments = base_moments;
     let (r0, s0) = affine_start(&moments)?;
     let size = (moments.xx.trace() / moments.sw).sqrt();
     let (mut r, mut s, mut t) = gauss_newton(&moments, r0, s0, opts.iterations);
@@ -131,15 +133,19 @@ pub fn fit_rigid(
             }
             if weights.iter().filter(|&&w| w > 0.0).count() < 4 {
                 weights.clone_from(&base);
+                moments = base_moments;
                 break;
             }
-            (r, s, t) = gauss_newton(&Moments::new(model, &y, &weights), r, s, opts.iterations);
+            moments = Moments::new(model, &y, &weights);
+            (r, s, t) = gauss_newton(&moments, r, s, opts.iterations);
         }
     }
-    // Robustness: Tukey reweighting, only when some residual stands out.
-    let mut res2 = Vec::with_capacity(n);
-    squared_residuals(model, &y, &r, s, &t, &mut res2);
-    if opts.robust {
+    // Robustness: Tukey reweighting, only when some residual stands out; it needs every
+    // point's residual. Without it the weighted residual comes from the moments: the cost at
+    // the optimal translation, plus what `t` is off it (the points are centred).
+    let sse = if opts.robust {
+        let mut res2 = Vec::with_capacity(n);
+        squared_residuals(model, &y, &r, s, &t, &mut res2);
         let before = weights.clone();
         let mut scratch = Vec::with_capacity(n);
         for _ in 0..2 {
@@ -154,9 +160,12 @@ pub fn fit_rigid(
             (r, s, t) = gauss_newton(&Moments::new(model, &y, &weights), r, s, opts.iterations);
             squared_residuals(model, &y, &r, s, &t, &mut res2);
         }
-    }
+        weights.iter().zip(&res2).map(|(w, e)| w * e).sum()
+    } else {
+        let off = (t - moments.translation(&r, s)).norm_squared();
+        (moments.normal_equations(&r, s).0 + moments.sw * off).max(0.0)
+    };
     let sw: f64 = weights.iter().sum();
-    let sse: f64 = weights.iter().zip(&res2).map(|(w, e)| w * e).sum();
     let rms_px = if sw > 0.0 {
         (sse / sw).sqrt()
     } else {
@@ -529,6 +538,26 @@ mod tests {
         )
         .unwrap();
         assert!(geodesic_deg(&plain.rotation, &a.to_rotation()) > 1.0);
+        // Each fit's RMS is its weighted residual, summed point by point (the plain fit's
+        // comes from its moments).
+        let y: Vec<Vector2<f64>> = lm.points().iter().map(image_to_plane).collect();
+        for f in [&robust, &plain] {
+            let sse = weighted_cost(
+                &face(),
+                &y,
+                &f.weights,
+                &f.rotation,
+                f.scale,
+                &f.translation,
+            );
+            let sw: f64 = f.weights.iter().sum();
+            let want = (sse / sw).sqrt();
+            assert!(
+                (f.rms_px - want).abs() < 1e-9 * want,
+                "{} vs {want}",
+                f.rms_px
+            );
+        }
     }
 
     #[test]
