@@ -344,11 +344,19 @@ fn estimate_in_subset(
                 },
             )?;
             let r = f.camera.rotation;
-            let shape = subset.map.map_points(&model.scheme, &f.shape);
-            let weights = match &subset.map {
-                SubsetMap::Own => f.camera.weights.clone(),
-                SubsetMap::Indices(idx) => idx.iter().map(|&i| f.camera.weights[i]).collect(),
-                SubsetMap::Anchors => vec![1.0; subset.scheme.len()],
+            // The model's own scheme takes the fit's shape and weights as they are.
+            let (shape, weights) = match &subset.map {
+                SubsetMap::Own => (f.shape, f.camera.weights),
+                map => {
+                    let shape = map.map_points(&model.scheme, &f.shape);
+                    let weights = match map {
+                        SubsetMap::Indices(idx) => {
+                            idx.iter().map(|&i| f.camera.weights[i]).collect()
+                        }
+                        _ => vec![1.0; subset.scheme.len()],
+                    };
+                    (shape, weights)
+                }
             };
             fitted = Some((
                 Cow::Owned(shape),

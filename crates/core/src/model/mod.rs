@@ -12,6 +12,8 @@ pub mod packed_bits;
 pub mod train;
 pub mod validate;
 
+use std::borrow::Cow;
+
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -215,15 +217,15 @@ impl PoseModel {
     }
 
     /// The model's landmarks expanded from a subset's (missing where the subset has no point).
-    pub fn expand(&self, subset: &Subset, shape: &Shape2) -> Option<Shape2> {
+    pub fn expand<'a>(&self, subset: &Subset, shape: &'a Shape2) -> Option<Cow<'a, Shape2>> {
         match &subset.map {
-            SubsetMap::Own => Some(shape.clone()),
+            SubsetMap::Own => Some(Cow::Borrowed(shape)),
             SubsetMap::Indices(idx) => {
                 let mut pts = vec![None; self.scheme.len()];
                 for (k, &i) in idx.iter().enumerate() {
                     pts[i] = shape.get(k).map(|p| [p.x, p.y]);
                 }
-                Shape2::from_options(&pts).ok()
+                Shape2::from_options(&pts).ok().map(Cow::Owned)
             }
             SubsetMap::Anchors => None,
         }
