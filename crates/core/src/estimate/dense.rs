@@ -71,12 +71,12 @@ macro_rules! kernel {
 
 pub(crate) use kernel;
 
-/// `t -= x yᵀ` for tiles (`x yᵀ` the product of the tiles as matrices, `y` transposed).
+/// `acc += x yᵀ` for tiles (`x yᵀ` the product of the tiles as matrices, `y` transposed).
 #[inline(always)]
-fn sub_product<const FMA: bool>(t: &mut Tile, x: &Tile, y: &Tile) {
-    for (c, col) in t.iter_mut().enumerate() {
+fn add_product<const FMA: bool>(acc: &mut Tile, x: &Tile, y: &Tile) {
+    for (c, col) in acc.iter_mut().enumerate() {
         for k in 0..TILE {
-            let f = -y[k][c];
+            let f = y[k][c];
             for r in 0..TILE {
                 col[r] = madd::<FMA>(f, x[k][r], col[r]);
             }
@@ -135,32 +135,35 @@ kernel! {
     /// false (and leaves `a` partly overwritten) when the matrix is not numerically positive
     /// definite.
     ///
-    /// Right-looking by tiles: each diagonal tile is factored, the tiles under it are solved
-    /// against it, and every later tile of the lower triangle loses the product of the two
-    /// solved tiles in its row and its column.
+    /// Left-looking by tiles: each tile of a column, from the diagonal down, first loses the
+    /// products `X_ik X_jkᵀ` of the solved tiles to its left (summed in registers, then taken off
+    /// once), then the diagonal tile is factored and the tiles under it are solved against it.
     pub(crate) fn factor / factor_generic(a: &mut [Tile], n: usize, inv: &mut [f64]) -> bool {
         debug_assert_eq!(a.len(), n * n);
         let (inv, _) = inv.as_chunks_mut::<TILE>();
         for j in 0..n {
-            let (done, later) = a.split_at_mut((j + 1) * n);
-            let panel = &mut done[j * n + j..];
-            // The diagonal tile (its updates already applied), then the tiles under it.
-            if !factor_tile::<FMA>(&mut panel[0]) {
+            let (left, rest) = a.split_at_mut(j * n);
+            let column = &mut rest[j..n];
+            for (i, t) in column.iter_mut().enumerate() {
+                let i = j + i;
+                let mut acc = [[0.0; TILE]; TILE];
+                for k in 0..j {
+                    add_product::<FMA>(&mut acc, &left[k * n + i], &left[k * n + j]);
+                }
+                for (col, sub) in t.iter_mut().zip(&acc) {
+                    for r in 0..TILE {
+                        col[r] -= sub[r];
+                    }
+                }
+            }
+            if !factor_tile::<FMA>(&mut column[0]) {
                 return false;
             }
-            let diag = panel[0];
+            let diag = column[0];
             let inv = &mut inv[j];
             *inv = std::array::from_fn(|c| 1.0 / diag[c][c]);
-            for x in &mut panel[1..] {
+            for x in &mut column[1..] {
                 solve_tile::<FMA>(x, &diag, inv);
-            }
-            // Every later tile (i, c), j < c <= i, loses X_i X_cᵀ.
-            let panel = &panel[1..];
-            for (c, col) in later.chunks_exact_mut(n).enumerate() {
-                let xc = &panel[c];
-                for (t, xi) in col[j + 1 + c..].iter_mut().zip(&panel[c..]) {
-                    sub_product::<FMA>(t, xi, xc);
-                }
             }
         }
         true
