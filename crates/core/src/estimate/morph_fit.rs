@@ -114,8 +114,10 @@ const PAIRS: [(usize, usize); 3] = [(0, 1), (0, 2), (1, 2)];
 
 /// The first `kk` principal components at each point and axis as a Jacobian row holds them
 /// from its second tile on: component `j` in column `6 + j` of the row, so here at position
-/// `2 + j` of `chunks` tiles (`blocks[(3i + a) chunks + c]`), zeros elsewhere. A point's
-/// coefficient rows are then three multiply-adds per tile.
+/// `2 + j` of `chunks` tiles, tile by tile and in a tile point by point
+/// (`blocks[3 (c n + i) + a]`, `n` points), zeros elsewhere. A point's coefficient rows are
+/// then three multiply-adds per tile, and a pass over the points for one tile of their rows
+/// reads the basis in order.
 #[derive(Debug, Clone, Default)]
 struct JacobianBasis {
     kk: usize,
@@ -403,7 +405,7 @@ impl MorphableBasis {
             let (c, l) = ((2 + j) / TILE, (2 + j) % TILE);
             for i in 0..flat.n {
                 for a in 0..3 {
-                    blocks[(3 * i + a) * chunks + c][l] = col[a * flat.np + i];
+                    blocks[3 * (c * flat.n + i) + a][l] = col[a * flat.np + i];
                 }
             }
         }
@@ -663,11 +665,12 @@ struct Work {
     step: Vec<f64>,
     inv: Vec<f64>,
     diagonal: Vec<f64>,
-    /// Jacobian rows of points (two each, padded), the same rows times their weights (or
-    /// weight corrections), and the weighted residuals.
+    /// Jacobian rows of points (two each, padded), the same rows times their weight
+    /// corrections (at the prior shape), and by point the square root of its weight and the
+    /// residual times it (`√wᵢ`, `√wᵢ rₓ`, `√wᵢ r_y`; zeros where the weight is zero).
     rows: dense::Rows,
     scaled: dense::Rows,
-    weighted: Vec<f64>,
+    scales: Vec<[f64; 3]>,
     /// Weighted residuals lifted into the model frame (`s wᵢ Rᵀ Pᵀ rᵢ`), point by point.
     lifted: Vec<f64>,
     /// Squared residuals at the state, at the candidate, and scratch for the robust weights.
@@ -700,7 +703,7 @@ impl Work {
         size(&mut self.cand_res2, flat.np);
         self.w.reserve(flat.np);
         self.diagonal.reserve(TILE * nt);
-        self.weighted.reserve(2 * flat.n);
+        self.scales.reserve(flat.n);
         self.scratch.reserve(flat.n);
     }
 }
@@ -980,8 +983,14 @@ fn normal_equations(
 }
 
 dense::kernel! {
-    /// [`normal_equations`] away from the prior shape or with few weights of one: the weighted
-    /// Gram matrix of every point's Jacobian rows.
+    /// [`normal_equations`] away from the prior shape or with few weights of one: the Gram
+    /// matrix of every point's Jacobian rows, each row scaled by the square root of the
+    /// point's weight (`JᵀWJ = Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ Jᵢ)`, the weights being positive), and the
+    /// gradient `Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ rᵢ)` summed as the rows are made: one pass over the points
+    /// for the pose's tile of the rows (with `q = R xᵢ` and `(a, b, c) = s (q_z, q_y, q_x)`,
+    /// `√wᵢ (0, a, -b, qₓ)` and `√wᵢ (-a, 0, c, q_y)`), then one per further tile for the
+    /// coefficients' `uᵢ = √wᵢ s R₀ Pᵢ` and `vᵢ = √wᵢ s R₁ Pᵢ` (the first of them led by the
+    /// translation's `√wᵢ (1, 0)` and `√wᵢ (0, 1)`), the camera's factors held throughout.
     fn normal_equations_by_points / by_points_generic(
         model: &MorphableBasis,
         kk: usize,
@@ -992,38 +1001,112 @@ dense::kernel! {
     ) -> f64 {
         let (d, nt) = (6 + kk, dense::tiles(6 + kk));
         let flat = Flat::new(model.n_points());
+        let (n, np) = (flat.n, flat.np);
         let m = st.r.matrix();
-        let in_use = work.w.iter().filter(|&&wi| wi > 0.0).count();
-        work.rows.reset(2 * in_use, nt);
-        work.scaled.reset(2 * in_use, nt);
-        work.weighted.clear();
+        let s = st.s;
+        let jb = model.jacobian(kk);
+        let chunks = jb.chunks;
+        debug_assert_eq!(chunks + 1, nt);
+        let w = &work.w[..n];
+        let in_use = w.iter().filter(|&&wi| wi > 0.0).count();
+        let rows = &mut work.rows;
+        rows.reset(2 * in_use, nt);
+        let mm = rows.m;
+        let (first, coef) = rows.blocks[..nt * mm].split_at_mut(mm);
+        let (first, _) = first.as_chunks_mut::<2>();
+        let (g, _) = work.jtr[..TILE * nt].as_chunks_mut::<TILE>();
+        let (xs, ys, zs) = (&st.x[..n], &st.x[np..np + n], &st.x[2 * np..2 * np + n]);
+        let (ux, uy) = (&y[..n], &y[np..np + n]);
+        let scales = &mut work.scales;
+        scales.clear();
+        scales.resize(n, [0.0; 3]);
+        // The pose's tile.
         let mut cost = 0.0;
-        let mut r = 0;
-        for i in 0..flat.n {
-            let wi = work.w[i];
-            if wi > 0.0 {
-                let x = flat.point(&st.x, i);
-                let yi = Vector2::new(y[i], y[flat.np + i]);
-                let res = st.s * (m * x).xy() + st.t - yi;
-                cost += wi * res.norm_squared();
-                work.weighted.extend([wi * res.x, wi * res.y]);
-                push_rows::<FMA>(model, kk, m, st.s, (i, x), (r, wi), work);
-                r += 2;
+        let mut g0 = [0.0; TILE];
+        let mut out = first.iter_mut();
+        let points = w.iter().zip(scales.iter_mut()).enumerate();
+        for (i, (&wi, sc)) in points.filter(|(_, (wi, _))| **wi > 0.0) {
+            let (px, py, pz) = (xs[i], ys[i], zs[i]);
+            let q: [f64; 3] = std::array::from_fn(|k| {
+                madd::<FMA>(m[(k, 2)], pz, madd::<FMA>(m[(k, 1)], py, m[(k, 0)] * px))
+            });
+            let (a, b, c) = (s * q[2], s * q[1], s * q[0]);
+            let (rx, ry) = (c + st.t.x - ux[i], b + st.t.y - uy[i]);
+            cost = madd::<FMA>(wi, madd::<FMA>(rx, rx, ry * ry), cost);
+            let sw = wi.sqrt();
+            let (ex, ey) = (sw * rx, sw * ry);
+            *sc = [sw, ex, ey];
+            let (sa, sb, sc) = (sw * a, sw * b, sw * c);
+            let px4 = [0.0, sa, -sb, sw * q[0]];
+            let py4 = [-sa, 0.0, sc, sw * q[1]];
+            *out.next().expect("two rows per point in use") = [px4, py4];
+            for l in 0..TILE {
+                g0[l] = madd::<FMA>(ey, py4[l], madd::<FMA>(ex, px4[l], g0[l]));
             }
         }
+        g[0] = g0;
+        // The coefficients' tiles.
+        let cx = [s * m[(0, 0)], s * m[(0, 1)], s * m[(0, 2)]];
+        let cy = [s * m[(1, 0)], s * m[(1, 1)], s * m[(1, 2)]];
+        let (basis, _) = jb.blocks[..3 * n * chunks].as_chunks::<3>();
+        for (t, ((out, gt), basis)) in coef
+            .chunks_exact_mut(mm)
+            .zip(&mut g[1..])
+            .zip(basis.chunks_exact(n.max(1)))
+            .enumerate()
+        {
+            let (out, _) = out.as_chunks_mut::<2>();
+            *gt = if t == 0 {
+                coefficient_tile::<FMA, true>(basis, scales, cx, cy, out)
+            } else {
+                coefficient_tile::<FMA, false>(basis, scales, cx, cy, out)
+            };
+        }
         let jtj = &mut work.jtj[..nt * nt];
-        jtj.fill([[0.0; TILE]; TILE]);
-        dense::gram(&work.rows, &work.scaled, jtj);
-        let jtr = &mut work.jtr[..TILE * nt];
-        jtr.fill(0.0);
-        dense::add_rows(&work.rows, &work.weighted, jtr);
-        dense::axpy(prior_w, &st.e[..kk], &mut jtr[6..d]);
+        dense::gram_of(&work.rows, jtj);
+        dense::axpy(prior_w, &st.e[..kk], &mut work.jtr[6..d]);
         for r in 6..TILE * nt {
             let (t, tc, tr) = dense::at(nt, r, r);
             jtj[t][tc][tr] += if r < d { prior_w } else { 1.0 };
         }
         cost + prior_term(&st.e, prior_w)
     }
+}
+
+/// A further tile of the rows of every point in use (of weight above zero) into `out` (a
+/// pair of rows per point in use), from that tile of the basis in Jacobian layout (`basis`,
+/// by point its three axes), the points' `[√wᵢ, √wᵢ rₓ, √wᵢ r_y]` (`scales`) and `s R₀`,
+/// `s R₁` (`cx`, `cy`); returns the tile's gradient. `FIRST`: the tile also holds the
+/// translation's columns (zeros in the basis).
+#[inline(always)]
+fn coefficient_tile<const FMA: bool, const FIRST: bool>(
+    basis: &[[[f64; TILE]; 3]],
+    scales: &[[f64; 3]],
+    cx: [f64; 3],
+    cy: [f64; 3],
+    out: &mut [[[f64; TILE]; 2]],
+) -> [f64; TILE] {
+    let lead =
+        |k: usize| -> [f64; TILE] { std::array::from_fn(|l| f64::from(u8::from(FIRST && l == k))) };
+    let (ex0, ey1) = (lead(0), lead(1));
+    let mut gt = [0.0; TILE];
+    let mut out = out.iter_mut();
+    let points = basis.iter().zip(scales);
+    for ([x4, y4, z4], &[sw, ex, ey]) in points.filter(|(_, sc)| sc[0] > 0.0) {
+        let u: [f64; TILE] = std::array::from_fn(|l| {
+            let e = madd::<FMA>(cx[2], z4[l], madd::<FMA>(cx[1], y4[l], cx[0] * x4[l]));
+            sw * if FIRST { e + ex0[l] } else { e }
+        });
+        let v: [f64; TILE] = std::array::from_fn(|l| {
+            let e = madd::<FMA>(cy[2], z4[l], madd::<FMA>(cy[1], y4[l], cy[0] * x4[l]));
+            sw * if FIRST { e + ey1[l] } else { e }
+        });
+        *out.next().expect("two rows per point in use") = [u, v];
+        for l in 0..TILE {
+            gt[l] = madd::<FMA>(ey, v[l], madd::<FMA>(ex, u[l], gt[l]));
+        }
+    }
+    gt
 }
 
 /// Writes the two Jacobian rows of point `i` (at shape point `x`) as rows `r` and `r + 1` of
@@ -1040,8 +1123,7 @@ fn push_rows<const FMA: bool>(
 ) {
     let q = m * x;
     let jb = model.jacobian(kk);
-    let at = |a: usize| &jb.blocks[(3 * i + a) * jb.chunks..(3 * i + a + 1) * jb.chunks];
-    let (bx, by, bz) = (at(0), at(1), at(2));
+    let n = model.n_points();
     let (rows, scaled) = (&mut work.rows, &mut work.scaled);
     let mm = rows.m;
     for (k, pose) in pose_rows(&q, s).into_iter().enumerate() {
@@ -1049,7 +1131,10 @@ fn push_rows<const FMA: bool>(
         let first = [pose[0], pose[1], pose[2], pose[3]];
         rows.blocks[r + k] = first;
         scaled.blocks[r + k] = first.map(|v| f * v);
-        for (c, ((x4, y4), z4)) in bx.iter().zip(by).zip(bz).enumerate() {
+        for c in 0..jb.chunks {
+            let [x4, y4, z4] = jb.blocks[3 * (c * n + i)..][..3] else {
+                unreachable!("three axes")
+            };
             let mut b: [f64; TILE] =
                 std::array::from_fn(|l| madd::<FMA>(fz, z4[l], madd::<FMA>(fy, y4[l], fx * x4[l])));
             if c == 0 {
