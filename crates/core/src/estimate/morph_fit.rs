@@ -666,11 +666,11 @@ struct Work {
     inv: Vec<f64>,
     diagonal: Vec<f64>,
     /// Jacobian rows of points (two each, padded), the same rows times their weight
-    /// corrections (at the prior shape), and by point the square root of its weight and the
-    /// residual times it (`√wᵢ`, `√wᵢ rₓ`, `√wᵢ r_y`; zeros where the weight is zero).
+    /// corrections (at the prior shape), and the square roots of the weights and the
+    /// residuals times them (`√wᵢ`, `√wᵢ rₓ`, `√wᵢ r_y`, each `np` long, flat).
     rows: dense::Rows,
     scaled: dense::Rows,
-    scales: Vec<[f64; 3]>,
+    scales: Vec<f64>,
     /// Weighted residuals lifted into the model frame (`s wᵢ Rᵀ Pᵀ rᵢ`), point by point.
     lifted: Vec<f64>,
     /// Squared residuals at the state, at the candidate, and scratch for the robust weights.
@@ -703,7 +703,7 @@ impl Work {
         size(&mut self.cand_res2, flat.np);
         self.w.reserve(flat.np);
         self.diagonal.reserve(TILE * nt);
-        self.scales.reserve(flat.n);
+        self.scales.reserve(3 * flat.np);
         self.scratch.reserve(flat.n);
     }
 }
@@ -985,12 +985,13 @@ fn normal_equations(
 dense::kernel! {
     /// [`normal_equations`] away from the prior shape or with few weights of one: the Gram
     /// matrix of every point's Jacobian rows, each row scaled by the square root of the
-    /// point's weight (`JᵀWJ = Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ Jᵢ)`, the weights being positive), and the
-    /// gradient `Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ rᵢ)` summed as the rows are made: one pass over the points
-    /// for the pose's tile of the rows (with `q = R xᵢ` and `(a, b, c) = s (q_z, q_y, q_x)`,
-    /// `√wᵢ (0, a, -b, qₓ)` and `√wᵢ (-a, 0, c, q_y)`), then one per further tile for the
-    /// coefficients' `uᵢ = √wᵢ s R₀ Pᵢ` and `vᵢ = √wᵢ s R₁ Pᵢ` (the first of them led by the
-    /// translation's `√wᵢ (1, 0)` and `√wᵢ (0, 1)`), the camera's factors held throughout.
+    /// point's weight (`JᵀWJ = Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ Jᵢ)`, the weights being positive, or zero
+    /// for zero rows), and the gradient `Σᵢ (√wᵢ Jᵢ)ᵀ (√wᵢ rᵢ)` summed as the rows are made:
+    /// one pass over the points, four at a time, for the pose's tile of the rows (with
+    /// `q = R xᵢ` and `(a, b, c) = s (q_z, q_y, q_x)`, `√wᵢ (0, a, -b, qₓ)` and
+    /// `√wᵢ (-a, 0, c, q_y)`), then one per further tile for the coefficients'
+    /// `uᵢ = √wᵢ s R₀ Pᵢ` and `vᵢ = √wᵢ s R₁ Pᵢ` (the first of them led by the translation's
+    /// `√wᵢ (1, 0)` and `√wᵢ (0, 1)`), the camera's factors held throughout.
     fn normal_equations_by_points / by_points_generic(
         model: &MorphableBasis,
         kk: usize,
@@ -1007,60 +1008,84 @@ dense::kernel! {
         let jb = model.jacobian(kk);
         let chunks = jb.chunks;
         debug_assert_eq!(chunks + 1, nt);
-        let w = &work.w[..n];
-        let in_use = w.iter().filter(|&&wi| wi > 0.0).count();
+        // Rows for every point, the padding's included: zeros where the weight is zero.
         let rows = &mut work.rows;
-        rows.reset(2 * in_use, nt);
-        let mm = rows.m;
-        let (first, coef) = rows.blocks[..nt * mm].split_at_mut(mm);
-        let (first, _) = first.as_chunks_mut::<2>();
+        rows.reset(2 * np, nt);
+        let (first, coef) = rows.blocks[..nt * 2 * np].split_at_mut(2 * np);
         let (g, _) = work.jtr[..TILE * nt].as_chunks_mut::<TILE>();
-        let (xs, ys, zs) = (&st.x[..n], &st.x[np..np + n], &st.x[2 * np..2 * np + n]);
-        let (ux, uy) = (&y[..n], &y[np..np + n]);
         let scales = &mut work.scales;
-        scales.clear();
-        scales.resize(n, [0.0; 3]);
-        // The pose's tile.
-        let mut cost = 0.0;
-        let mut g0 = [0.0; TILE];
-        let mut out = first.iter_mut();
-        let points = w.iter().zip(scales.iter_mut()).enumerate();
-        for (i, (&wi, sc)) in points.filter(|(_, (wi, _))| **wi > 0.0) {
-            let (px, py, pz) = (xs[i], ys[i], zs[i]);
-            let q: [f64; 3] = std::array::from_fn(|k| {
-                madd::<FMA>(m[(k, 2)], pz, madd::<FMA>(m[(k, 1)], py, m[(k, 0)] * px))
+        // Every value is written before it is read: no need to clear.
+        if scales.len() < 3 * np {
+            scales.resize(3 * np, 0.0);
+        }
+        let (sws, rest) = scales.split_at_mut(np);
+        let (exs, eys) = rest.split_at_mut(np);
+        // The pose's tile, four points at a time.
+        let mut cost = [0.0; TILE];
+        let mut g0 = [[0.0; TILE]; TILE];
+        let (x4s, y4s, z4s) = (&st.x[..np], &st.x[np..2 * np], &st.x[2 * np..3 * np]);
+        let (u4s, v4s) = (&y[..np], &y[np..2 * np]);
+        for (((((((((x4, y4), z4), u4), v4), w4), out), sw4), ex4), ey4) in x4s.as_chunks::<TILE>().0.iter()
+            .zip(y4s.as_chunks::<TILE>().0)
+            .zip(z4s.as_chunks::<TILE>().0)
+            .zip(u4s.as_chunks::<TILE>().0)
+            .zip(v4s.as_chunks::<TILE>().0)
+            .zip(work.w[..np].as_chunks::<TILE>().0)
+            .zip(first.as_chunks_mut::<{ 2 * TILE }>().0)
+            .zip(sws.as_chunks_mut::<TILE>().0)
+            .zip(exs.as_chunks_mut::<TILE>().0)
+            .zip(eys.as_chunks_mut::<TILE>().0)
+        {
+            // Lane by lane, four points at once.
+            let q: [[f64; TILE]; 3] = std::array::from_fn(|k| {
+                std::array::from_fn(|l| {
+                    madd::<FMA>(m[(k, 2)], z4[l], madd::<FMA>(m[(k, 1)], y4[l], m[(k, 0)] * x4[l]))
+                })
             });
-            let (a, b, c) = (s * q[2], s * q[1], s * q[0]);
-            let (rx, ry) = (c + st.t.x - ux[i], b + st.t.y - uy[i]);
-            cost = madd::<FMA>(wi, madd::<FMA>(rx, rx, ry * ry), cost);
-            let sw = wi.sqrt();
-            let (ex, ey) = (sw * rx, sw * ry);
-            *sc = [sw, ex, ey];
-            let (sa, sb, sc) = (sw * a, sw * b, sw * c);
-            let px4 = [0.0, sa, -sb, sw * q[0]];
-            let py4 = [-sa, 0.0, sc, sw * q[1]];
-            *out.next().expect("two rows per point in use") = [px4, py4];
+            let rx: [f64; TILE] = std::array::from_fn(|l| madd::<FMA>(s, q[0][l], st.t.x) - u4[l]);
+            let ry: [f64; TILE] = std::array::from_fn(|l| madd::<FMA>(s, q[1][l], st.t.y) - v4[l]);
+            let wl = w4.map(|v| v.max(0.0));
+            let sw = wl.map(f64::sqrt);
+            let ex: [f64; TILE] = std::array::from_fn(|l| sw[l] * rx[l]);
+            let ey: [f64; TILE] = std::array::from_fn(|l| sw[l] * ry[l]);
+            let ss = sw.map(|v| v * s);
+            let sa: [f64; TILE] = std::array::from_fn(|l| ss[l] * q[2][l]);
+            let sb: [f64; TILE] = std::array::from_fn(|l| ss[l] * q[1][l]);
+            let sc: [f64; TILE] = std::array::from_fn(|l| ss[l] * q[0][l]);
+            let sqx: [f64; TILE] = std::array::from_fn(|l| sw[l] * q[0][l]);
+            let sqy: [f64; TILE] = std::array::from_fn(|l| sw[l] * q[1][l]);
             for l in 0..TILE {
-                g0[l] = madd::<FMA>(ey, py4[l], madd::<FMA>(ex, px4[l], g0[l]));
+                cost[l] = madd::<FMA>(wl[l], madd::<FMA>(rx[l], rx[l], ry[l] * ry[l]), cost[l]);
+                g0[0][l] = madd::<FMA>(-sa[l], ey[l], g0[0][l]);
+                g0[1][l] = madd::<FMA>(sa[l], ex[l], g0[1][l]);
+                g0[2][l] = madd::<FMA>(sc[l], ey[l], madd::<FMA>(-sb[l], ex[l], g0[2][l]));
+                g0[3][l] = madd::<FMA>(sqy[l], ey[l], madd::<FMA>(sqx[l], ex[l], g0[3][l]));
+            }
+            (*sw4, *ex4, *ey4) = (sw, ex, ey);
+            for l in 0..TILE {
+                out[2 * l] = [0.0, sa[l], -sb[l], sqx[l]];
+                out[2 * l + 1] = [-sa[l], 0.0, sc[l], sqy[l]];
             }
         }
-        g[0] = g0;
+        g[0] = g0.map(|a| (a[0] + a[2]) + (a[1] + a[3]));
         // The coefficients' tiles.
         let cx = [s * m[(0, 0)], s * m[(0, 1)], s * m[(0, 2)]];
         let cy = [s * m[(1, 0)], s * m[(1, 1)], s * m[(1, 2)]];
         let (basis, _) = jb.blocks[..3 * n * chunks].as_chunks::<3>();
+        let scales = (&sws[..n], &exs[..n], &eys[..n]);
         for (t, ((out, gt), basis)) in coef
-            .chunks_exact_mut(mm)
+            .chunks_exact_mut(2 * np)
             .zip(&mut g[1..])
             .zip(basis.chunks_exact(n.max(1)))
             .enumerate()
         {
             let (out, _) = out.as_chunks_mut::<2>();
             *gt = if t == 0 {
-                coefficient_tile::<FMA, true>(basis, scales, cx, cy, out)
+                coefficient_tile::<FMA, true>(basis, scales, cx, cy, &mut out[..n])
             } else {
-                coefficient_tile::<FMA, false>(basis, scales, cx, cy, out)
+                coefficient_tile::<FMA, false>(basis, scales, cx, cy, &mut out[..n])
             };
+            out[n..].fill([[0.0; TILE]; 2]);
         }
         let jtj = &mut work.jtj[..nt * nt];
         dense::gram_of(&work.rows, jtj);
@@ -1069,19 +1094,18 @@ dense::kernel! {
             let (t, tc, tr) = dense::at(nt, r, r);
             jtj[t][tc][tr] += if r < d { prior_w } else { 1.0 };
         }
-        cost + prior_term(&st.e, prior_w)
+        (cost[0] + cost[2]) + (cost[1] + cost[3]) + prior_term(&st.e, prior_w)
     }
 }
 
-/// A further tile of the rows of every point in use (of weight above zero) into `out` (a
-/// pair of rows per point in use), from that tile of the basis in Jacobian layout (`basis`,
-/// by point its three axes), the points' `[√wᵢ, √wᵢ rₓ, √wᵢ r_y]` (`scales`) and `s R₀`,
-/// `s R₁` (`cx`, `cy`); returns the tile's gradient. `FIRST`: the tile also holds the
-/// translation's columns (zeros in the basis).
+/// A further tile of the rows of every point into `out` (a pair of rows per point), from that
+/// tile of the basis in Jacobian layout (`basis`, by point its three axes), the points' `√wᵢ`,
+/// `√wᵢ rₓ` and `√wᵢ r_y` (`scales`) and `s R₀`, `s R₁` (`cx`, `cy`); returns the tile's
+/// gradient. `FIRST`: the tile also holds the translation's columns (zeros in the basis).
 #[inline(always)]
 fn coefficient_tile<const FMA: bool, const FIRST: bool>(
     basis: &[[[f64; TILE]; 3]],
-    scales: &[[f64; 3]],
+    (sws, exs, eys): (&[f64], &[f64], &[f64]),
     cx: [f64; 3],
     cy: [f64; 3],
     out: &mut [[[f64; TILE]; 2]],
@@ -1090,9 +1114,8 @@ fn coefficient_tile<const FMA: bool, const FIRST: bool>(
         |k: usize| -> [f64; TILE] { std::array::from_fn(|l| f64::from(u8::from(FIRST && l == k))) };
     let (ex0, ey1) = (lead(0), lead(1));
     let mut gt = [0.0; TILE];
-    let mut out = out.iter_mut();
-    let points = basis.iter().zip(scales);
-    for ([x4, y4, z4], &[sw, ex, ey]) in points.filter(|(_, sc)| sc[0] > 0.0) {
+    let points = basis.iter().zip(out).zip(sws.iter().zip(exs).zip(eys));
+    for (([x4, y4, z4], o), ((&sw, &ex), &ey)) in points {
         let u: [f64; TILE] = std::array::from_fn(|l| {
             let e = madd::<FMA>(cx[2], z4[l], madd::<FMA>(cx[1], y4[l], cx[0] * x4[l]));
             sw * if FIRST { e + ex0[l] } else { e }
@@ -1101,7 +1124,7 @@ fn coefficient_tile<const FMA: bool, const FIRST: bool>(
             let e = madd::<FMA>(cy[2], z4[l], madd::<FMA>(cy[1], y4[l], cy[0] * x4[l]));
             sw * if FIRST { e + ey1[l] } else { e }
         });
-        *out.next().expect("two rows per point in use") = [u, v];
+        *o = [u, v];
         for l in 0..TILE {
             gt[l] = madd::<FMA>(ey, v[l], madd::<FMA>(ex, u[l], gt[l]));
         }
