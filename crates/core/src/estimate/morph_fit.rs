@@ -918,8 +918,9 @@ fn pose_rows(q: &Vector3<f64>, s: f64) -> [[f64; 6]; 2] {
 /// shape the system comes from moments ([`blocks_from_moments`]), one pass over the points
 /// for the residuals and the pose gradient ([`gradient_pass`]) and the coefficient gradient
 /// `Σᵢ wᵢ (uᵢ rₓ + vᵢ r_y) = Σᵢ Pᵢᵀ (s wᵢ Rᵀ Pᵀ rᵢ)` from one pass over the basis; the points
-/// whose weight is not one are then corrected for, through their Jacobian rows. Elsewhere, the
-/// system is the weighted Gram matrix of every point's Jacobian rows ([`dense::gram`]).
+/// whose weight is not one are then corrected for, through their Jacobian rows
+/// ([`dense::gram`]). Elsewhere, the system is the Gram matrix of every point's Jacobian rows
+/// times the square root of its weight ([`normal_equations_by_points`], [`dense::gram_of`]).
 fn normal_equations(
     model: &MorphableBasis,
     kk: usize,
@@ -1347,6 +1348,22 @@ mod tests {
         st: &Joint,
         prior_w: f64,
     ) -> (DMatrix<f64>, DVector<f64>, f64) {
+        tiled_system_of(normal_equations, b, kk, y, w, st, prior_w)
+    }
+
+    type System = fn(&MorphableBasis, usize, &[f64], &Joint, f64, &mut Work) -> f64;
+
+    /// `tiled_system` of one way to form the system (`normal_equations`, or the build of the
+    /// system point by point as built for the target).
+    fn tiled_system_of(
+        system: System,
+        b: &MorphableBasis,
+        kk: usize,
+        y: &[Vector2<f64>],
+        w: &[f64],
+        st: &Joint,
+        prior_w: f64,
+    ) -> (DMatrix<f64>, DVector<f64>, f64) {
         let flat = Flat::new(b.n_points());
         let mut work = Work::default();
         work.fit(b);
@@ -1356,7 +1373,7 @@ mod tests {
         for (i, p) in y.iter().enumerate() {
             (yf[i], yf[flat.np + i]) = (p.x, p.y);
         }
-        let cost = normal_equations(b, kk, &yf, st, prior_w, &mut work);
+        let cost = system(b, kk, &yf, st, prior_w, &mut work);
         let (d, nt) = (6 + kk, dense::tiles(6 + kk));
         let h = DMatrix::from_fn(d, d, |r, c| {
             let (t, tc, tr) = dense::at(nt, r.max(c), r.min(c));
@@ -1425,6 +1442,10 @@ mod tests {
                 let st = state(&b, 7, e, a);
                 let got = tiled_system(&b, kk, &y, w, &st, 0.8);
                 let want = explicit_system(&b, kk, &y, w, &st, 0.8);
+                assert_close(&got, &want);
+                // The build point by point that the dispatch may not take.
+                let generic = by_points_generic::<false>;
+                let got = tiled_system_of(generic, &b, kk, &y, w, &st, 0.8);
                 assert_close(&got, &want);
             }
         }
