@@ -466,12 +466,23 @@ impl Default for MorphOptions {
     }
 }
 
-/// The fitted camera and coefficients.
+/// The fitted camera and shape.
 #[derive(Debug, Clone)]
 pub struct MorphFit {
     pub camera: RigidFit,
-    pub coefficients: Vec<f64>,
+    /// The coefficients of the principal components the fit moved, in standard deviations
+    /// from the prior ([`MorphFit::coefficients`] gives the basis shapes' coefficients).
+    pub principal: Vec<f64>,
     pub shape: Vec<Vector3<f64>>,
+}
+
+impl MorphFit {
+    /// The coefficient of each of `model`'s basis shapes (`model` the basis fitted): the shape
+    /// is `model`'s [`MorphableBasis::shape`] of them. Left to the caller who wants them, as
+    /// the pose does not.
+    pub fn coefficients(&self, model: &MorphableBasis) -> Vec<f64> {
+        model.coefficients(&self.principal)
+    }
 }
 
 thread_local! {
@@ -510,7 +521,7 @@ pub fn fit_morphable(
         )?;
         return Ok(MorphFit {
             camera,
-            coefficients: model.prior_mean.clone(),
+            principal: Vec::new(),
             shape: model.prior_shape.clone(),
         });
     }
@@ -613,7 +624,7 @@ pub fn fit_morphable(
             weights: w,
             rms_px,
         },
-        coefficients: model.coefficients(&st.e),
+        principal: st.e,
         shape: (0..flat.n).map(|i| flat.point(&st.x, i)).collect(),
     })
 }
@@ -1473,7 +1484,7 @@ mod tests {
         let a = EulerAngles::new(20.0, -10.0, 5.0).unwrap();
         let lm = view(&b, &c, a);
         let f = fit_morphable(&b, &lm, &[], None, MorphOptions::default()).unwrap();
-        for (x, want) in f.shape.iter().zip(b.shape(&f.coefficients)) {
+        for (x, want) in f.shape.iter().zip(b.shape(&f.coefficients(&b))) {
             assert!((x - want).norm() < 1e-9, "{x} vs {want}");
         }
     }
@@ -1519,6 +1530,7 @@ mod tests {
                 ..MorphOptions::default()
             };
             let f = fit_morphable(&b, &view(&b, &truth, a), &[], None, opts).unwrap();
+            let coefficients = f.coefficients(&b);
             let e = EulerAngles::from_rotation(&f.camera.rotation);
             assert!(
                 (e.yaw - yaw).abs() < 0.05 && (e.pitch - pitch).abs() < 0.05,
@@ -1527,15 +1539,13 @@ mod tests {
             assert!((e.roll - roll).abs() < 0.05);
             // The nose's depth is invisible head-on; the mouth's width is not.
             assert!(
-                (f.coefficients[1] - truth[1]).abs() < 0.05,
-                "{:?}",
-                f.coefficients
+                (coefficients[1] - truth[1]).abs() < 0.05,
+                "{coefficients:?}"
             );
             if yaw != 0.0 {
                 assert!(
-                    (f.coefficients[0] - truth[0]).abs() < 0.05,
-                    "{:?}",
-                    f.coefficients
+                    (coefficients[0] - truth[0]).abs() < 0.05,
+                    "{coefficients:?}"
                 );
             }
         }
