@@ -177,11 +177,20 @@ kernel! {
         debug_assert_eq!(b.len(), TILE * n);
         let (b, _) = b.as_chunks_mut::<TILE>();
         let (inv, _) = inv.as_chunks::<TILE>();
-        // L y = b.
+        // L y = b, left-looking: each tile of y first loses the products of the solved tiles
+        // above it (summed in registers), then is solved against its diagonal tile.
         for j in 0..n {
-            let col = &l[j * n + j..(j + 1) * n];
-            let diag = &col[0];
-            let mut y = b[j];
+            let mut acc = [0.0; TILE];
+            for (t, yt) in b[..j].iter().enumerate() {
+                let x = &l[t * n + j];
+                for k in 0..TILE {
+                    for r in 0..TILE {
+                        acc[r] = madd::<FMA>(yt[k], x[k][r], acc[r]);
+                    }
+                }
+            }
+            let diag = &l[j * n + j];
+            let mut y: [f64; TILE] = std::array::from_fn(|r| b[j][r] - acc[r]);
             for c in 0..TILE {
                 y[c] *= inv[j][c];
                 for r in c + 1..TILE {
@@ -189,13 +198,6 @@ kernel! {
                 }
             }
             b[j] = y;
-            for (x, bi) in col[1..].iter().zip(&mut b[j + 1..]) {
-                for k in 0..TILE {
-                    for r in 0..TILE {
-                        bi[r] = madd::<FMA>(-y[k], x[k][r], bi[r]);
-                    }
-                }
-            }
         }
         // Lᵀ x = y, from the last tile up: z = y_j - Σ_{i > j} X_ijᵀ x_i, lane by lane first.
         for j in (0..n).rev() {
