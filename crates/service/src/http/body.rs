@@ -330,9 +330,19 @@ pub fn json_bytes(body: Vec<u8>) -> Response {
         .into_response()
 }
 
+/// `v` as JSON, in a buffer of room for one pose.
 pub fn to_json<T: Serialize>(v: &T) -> Result<Vec<u8>, HttpError> {
-    // A pose with 68 points is about 800 bytes: one allocation rather than a few regrowths.
-    let mut out = Vec::with_capacity(1024);
+    to_json_sized(v, ONE_POSE_JSON)
+}
+
+/// Room for one pose's JSON: with 68 points and the uncertainty it is about 1,000-1,100 bytes,
+/// so one allocation rather than a regrowth and a copy.
+pub const ONE_POSE_JSON: usize = 1536;
+
+/// `v` as JSON in a buffer made with room for `capacity` bytes (a batch's answer: its faces
+/// times [`ONE_POSE_JSON`], rather than a dozen regrowths and copies of up to a megabyte).
+pub fn to_json_sized<T: Serialize>(v: &T, capacity: usize) -> Result<Vec<u8>, HttpError> {
+    let mut out = Vec::with_capacity(capacity);
     serde_json::to_writer(&mut out, v)
         .map_err(|e| ServiceError::internal(format!("response serialization: {e}")))?;
     Ok(out)

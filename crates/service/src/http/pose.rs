@@ -19,7 +19,9 @@ use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::record::check_coordinates;
 
-use super::body::{json_bytes, parse_json, read_guarded_body, require_json, to_json};
+use super::body::{
+    ONE_POSE_JSON, json_bytes, parse_json, read_guarded_body, require_json, to_json, to_json_sized,
+};
 use super::body_guard::{BodyGuard, BodyKind};
 use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
@@ -266,11 +268,15 @@ pub fn answer_batch(
         limit: limits.request_timeout,
     })?;
     metrics.faces(&tally, Transport::Http);
-    to_json(&BatchResponse {
-        model: model.name.clone(),
-        model_version: model.version.clone(),
-        succeeded: tally.succeeded(),
-        failed: tally.failed(),
-        results,
-    })
+    let capacity = ONE_POSE_JSON.saturating_mul(results.len().max(1));
+    to_json_sized(
+        &BatchResponse {
+            model: model.name.clone(),
+            model_version: model.version.clone(),
+            succeeded: tally.succeeded(),
+            failed: tally.failed(),
+            results,
+        },
+        capacity,
+    )
 }
