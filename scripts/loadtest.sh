@@ -107,7 +107,8 @@ run_wrk() { # conns path [body]
     local args=(-t1 -c"$conns" -d"${DURATION}s" --latency)
     [ -n "$body" ] && args+=(-s "$WORK/post.lua")
     t0=$(server_ticks)
-    client=$( { TIMEFORMAT='%U %S'; time BODY="$body" wrk "${args[@]}" "$BASE$path" >"$WORK/wrk.txt"; } 2>&1 )
+    client=$( { TIMEFORMAT='%U %S'; time BODY="$body" wrk "${args[@]}" "$BASE$path" >"$WORK/wrk.txt" 2>"$WORK/wrk.err"; } 2>&1 ) ||
+        { cat "$WORK/wrk.err" >&2; exit 1; }
     t1=$(server_ticks)
     echo "$(python3 "$WORK/wrk.py" "$WORK/wrk.txt") $(python3 -c "
 import re
