@@ -339,6 +339,9 @@ pub fn to_json<T: Serialize>(v: &T) -> Result<Vec<u8>, HttpError> {
 /// so one allocation rather than a regrowth and a copy.
 pub const ONE_POSE_JSON: usize = 1536;
 
+/// Room for one face's error in a batch's answer (its code, a message of a line and the id).
+pub const ONE_ERROR_JSON: usize = 384;
+
 /// `v` as JSON in a buffer made with room for `capacity` bytes (a batch's answer: its faces
 /// times [`ONE_POSE_JSON`], rather than a dozen regrowths and copies of up to a megabyte).
 pub fn to_json_sized<T: Serialize>(v: &T, capacity: usize) -> Result<Vec<u8>, HttpError> {

@@ -20,7 +20,8 @@ use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::record::check_coordinates;
 
 use super::body::{
-    ONE_POSE_JSON, json_bytes, parse_json, read_guarded_body, require_json, to_json, to_json_sized,
+    ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_guarded_body, require_json,
+    to_json, to_json_sized,
 };
 use super::body_guard::{BodyGuard, BodyKind};
 use super::error::{ErrorBody, HttpError};
@@ -268,7 +269,11 @@ pub fn answer_batch(
         limit: limits.request_timeout,
     })?;
     metrics.faces(&tally, Transport::Http);
-    let capacity = ONE_POSE_JSON.saturating_mul(results.len().max(1));
+    // Room for what the answer will hold: a pose or a shorter error a face.
+    let capacity = ONE_POSE_JSON
+        .saturating_mul(tally.succeeded() as usize)
+        .saturating_add(ONE_ERROR_JSON.saturating_mul(tally.failed() as usize))
+        .max(ONE_ERROR_JSON);
     to_json_sized(
         &BatchResponse {
             model: model.name.clone(),
