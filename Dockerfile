@@ -32,17 +32,18 @@ WORKDIR /src
 # empty targets.
 COPY Cargo.toml Cargo.lock ./
 COPY crates/core/Cargo.toml crates/core/
+COPY crates/eval/Cargo.toml crates/eval/
 COPY crates/files/Cargo.toml crates/files/
+COPY crates/records/Cargo.toml crates/records/
 COPY crates/app/Cargo.toml crates/app/
 COPY crates/service/Cargo.toml crates/service/
 COPY crates/testkit/Cargo.toml crates/testkit/
 COPY crates/protogen/Cargo.toml crates/protogen/
-RUN mkdir -p src crates/core/benches crates/core/examples crates/service/benches crates/service/examples \
- && for c in core files app service testkit; do mkdir -p crates/$c/src && touch crates/$c/src/lib.rs; done \
+RUN mkdir -p src crates/core/benches crates/service/benches crates/service/examples \
+ && for c in core eval files records app service testkit; do mkdir -p crates/$c/src && touch crates/$c/src/lib.rs; done \
  && mkdir -p crates/protogen/src && echo 'fn main() {}' > crates/protogen/src/main.rs \
  && echo 'fn main() {}' > src/main.rs \
  && for b in hpr estimate train real_faces; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \
- && echo 'fn main() {}' > crates/core/examples/convention.rs \
  && echo 'fn main() {}' > crates/service/benches/service.rs \
  && for e in instructions loadgen; do echo 'fn main() {}' > crates/service/examples/$e.rs; done \
  && cargo build --release --locked --bin facepose

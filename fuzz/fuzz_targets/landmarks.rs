@@ -1,9 +1,9 @@
-//! The landmark list reader (`facepose_core::record::parse_landmarks`): never panics, and what
+//! The landmark list reader (`facepose_records::parse_landmarks`): never panics, and what
 //! it accepts serde_json reads as the same points (it is stricter only in refusing lists of
 //! more than a scheme's points).
 #![no_main]
 
-use facepose_core::record::parse_landmarks;
+use facepose_records::parse_landmarks;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

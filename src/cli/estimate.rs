@@ -11,8 +11,9 @@ use clap::{Args, ValueEnum};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::PoseModel;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
-use facepose_core::record::{ImageSize, Landmarks, PoseRecord, pixel_shape};
 use facepose_core::shape::Shape2;
+use facepose_core::shape::pixels::{ImageSize, pixel_shape};
+use facepose_records::{Landmarks, PoseRecord};
 use serde::Deserialize;
 use serde_json::{Value, json};
 

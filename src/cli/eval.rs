@@ -7,20 +7,20 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose_core::eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
-use facepose_core::eval::mesh::{MeshOptions, mesh_markdown, mesh_protocol};
-use facepose_core::eval::paper::{
+use facepose_core::pose::Method;
+use facepose_core::shape::Scheme;
+use facepose_eval::aflw::{self, Source, aflw_markdown, error_by_yaw};
+use facepose_eval::mesh::{MeshOptions, mesh_markdown, mesh_protocol};
+use facepose_eval::paper::{
     PaperOptions, default_entries, paper_markdown, paper_protocol, robustness_markdown,
     train_paper_model,
 };
-use facepose_core::eval::paper::{PaperReport, Perturbation};
-use facepose_core::eval::plot::{
+use facepose_eval::paper::{PaperReport, Perturbation};
+use facepose_eval::plot::{
     LandmarkPanel, Panel, Series, heat_maps_png, landmarks_png, line_chart_png,
 };
-use facepose_core::eval::tracking::{TrackingOptions, tracking_markdown, tracking_protocol};
-use facepose_core::eval::uncertainty;
-use facepose_core::pose::Method;
-use facepose_core::shape::Scheme;
+use facepose_eval::tracking::{TrackingOptions, tracking_markdown, tracking_protocol};
+use facepose_eval::uncertainty;
 use facepose_files::data::{AflwFace, load_aflw, load_population};
 
 use super::progress::{QuietArg, Reporter};
@@ -180,7 +180,7 @@ pub fn run(a: EvalArgs) -> Result<(), CliError> {
              ({failed} frames had no estimate and hold the last output). Errors are geodesic, in degrees; jitter \
              is the RMS angle between the output's frame-to-frame turn and the truth's. `kalman, fixed` is the \
              Kalman filter with the same 3° covariance for every frame; `kalman, uncertainty` weighs each frame \
-             by its calibrated turn covariance. crates/core/src/eval/tracking.rs has the details.\n\n{}\n",
+             by its calibrated turn covariance. crates/eval/src/tracking.rs has the details.\n\n{}\n",
             opts.trajectories,
             opts.seconds,
             opts.fps,
@@ -327,9 +327,9 @@ fn run_paper(
         per_pose = test.len() as f64 / opts.stride as f64,
         table = paper_markdown(&paper),
         samples = opts.robustness_samples,
-        cap = facepose_core::eval::paper::MAX_MISSING_FIVE,
+        cap = facepose_eval::paper::MAX_MISSING_FIVE,
         robust = robustness_markdown(&paper),
-        coverage = facepose_core::eval::paper::coverage_markdown(&paper),
+        coverage = facepose_eval::paper::coverage_markdown(&paper),
     );
     Ok((text, paper))
 }

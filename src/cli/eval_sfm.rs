@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use facepose_core::eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
 use facepose_core::shape::ibug68;
+use facepose_eval::sfm_check::{SfmCondition, sfm_check, sfm_markdown};
 use facepose_files::data::load_population;
 
 use super::progress::{QuietArg, Reporter};

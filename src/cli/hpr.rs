@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use facepose_core::eval::hpr_table::{hpr_markdown, hpr_table};
 use facepose_core::hpr::KatzHpr;
 use facepose_core::synth::AngleRange;
+use facepose_eval::hpr_table::{hpr_markdown, hpr_table};
 use facepose_files::data::load_canonical_mesh;
 
 use super::progress::{QuietArg, Reporter};

@@ -12,7 +12,7 @@ use std::fmt::Display;
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
-use facepose_core::progress::{Observer, Phase, Progress};
+use facepose_eval::progress::{Observer, Phase, Progress};
 
 /// The least time between two lines of one stage (its start and end lines aside).
 pub const INTERVAL: Duration = Duration::from_secs(2);

@@ -5,13 +5,13 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use clap::{Args, ValueEnum};
-use facepose_core::eval::uncertainty::calibrate_on_faces;
 use facepose_core::model::bundle::{Bundle, Provenance, SourceFile, sha256_hex};
 use facepose_core::model::{
     BasisSource, MeshSource, RegressionParams, TrainOptions, train_from_population,
 };
 use facepose_core::sfm::{SfmOptions, reconstruct};
 use facepose_core::shape::{Scheme, Shape2};
+use facepose_eval::uncertainty::calibrate_on_faces;
 use facepose_files::data::{
     load_aflw, load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
 };

@@ -1,4 +1,4 @@
-//! The paper's protocol (`facepose_core::eval::paper`) on a small cut of the bfm68 population and a
+//! The paper's protocol (`facepose_eval::paper`) on a small cut of the bfm68 population and a
 //! small grid, against expectations that do not come from the code under test: a rigid fit of
 //! a shape's own exact projections recovers the pose, the regression trained on the mean's views
 //! nearly reproduces them, the geometric method reads yaw off a level face, and a test shape
@@ -8,15 +8,15 @@ use crate::common;
 
 use std::process::Command;
 
-use facepose_core::eval::paper::{
+use facepose_core::model::PoseModel;
+use facepose_core::pose::Method;
+use facepose_core::shape::ibug68;
+use facepose_core::synth::{AngleRange, PoseGrid};
+use facepose_eval::paper::{
     PaperEntry, PaperOptions, Perturbation, Stage, default_entries, paper_protocol,
     train_paper_model,
 };
-use facepose_core::model::PoseModel;
-use facepose_core::pose::Method;
-use facepose_core::progress::{Phase, Progress, Silent};
-use facepose_core::shape::ibug68;
-use facepose_core::synth::{AngleRange, PoseGrid};
+use facepose_eval::progress::{Phase, Progress, Silent};
 use facepose_files::data::load_population;
 use nalgebra::Vector3;
 

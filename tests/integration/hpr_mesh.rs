@@ -3,10 +3,10 @@
 
 use crate::common;
 
-use facepose_core::eval::hpr_table::{HprMethod, hpr_table};
 use facepose_core::hpr::KatzHpr;
-use facepose_core::progress::Silent;
 use facepose_core::synth::AngleRange;
+use facepose_eval::hpr_table::{HprMethod, hpr_table};
+use facepose_eval::progress::Silent;
 use facepose_files::data::load_canonical_mesh;
 
 #[test]

@@ -4,13 +4,13 @@
 //! "does it look like a face" check against the AFLW2000-3D dev faces.
 
 use facepose_core::data::{AflwFace, CanonicalMesh, parse_aflw, parse_canonical_mesh};
-use facepose_core::eval::aflw::{Source, landmarks};
 use facepose_core::geometry::geodesic_deg;
 use facepose_core::geometry::procrustes::{Scaling, align3};
 use facepose_core::model::{PoseModel, default_model};
 use facepose_core::pose::{EstimateOptions, MISFIT_WARN, Method, Warning, estimate, estimate_with};
 use facepose_core::shape::Shape2;
 use facepose_core::{Error, estimate::Intrinsics};
+use facepose_eval::aflw::{Source, landmarks};
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::common;

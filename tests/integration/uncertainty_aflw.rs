@@ -4,12 +4,10 @@
 
 use crate::common;
 
-use facepose_core::eval::aflw::Source;
-use facepose_core::eval::uncertainty::{
-    CALIBRATED_METHODS, coverage_rows, cross_validate, samples,
-};
 use facepose_core::model::default_model;
 use facepose_core::pose::Method;
+use facepose_eval::aflw::Source;
+use facepose_eval::uncertainty::{CALIBRATED_METHODS, coverage_rows, cross_validate, samples};
 use facepose_files::data::load_aflw;
 
 #[test]

@@ -9,7 +9,8 @@ use crate::registry::ServedModel;
 
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
-use facepose_core::record::{ImageSize, PoseRecord, pixel_shape};
+use facepose_core::shape::pixels::{ImageSize, pixel_shape};
+use facepose_records::PoseRecord;
 
 /// One face as a transport hands it over. Empty strings mean "not given".
 #[derive(Debug, Clone, Default)]

@@ -60,11 +60,13 @@ pub enum Error {
 }
 
 impl Error {
-    pub(crate) fn non_finite(what: impl Into<String>) -> Self {
+    /// [`Error::NonFinite`] for `what`.
+    pub fn non_finite(what: impl Into<String>) -> Self {
         Error::NonFinite { what: what.into() }
     }
 
-    pub(crate) fn too_few(what: impl Into<String>, needed: usize, got: usize) -> Self {
+    /// [`Error::TooFewPoints`]: `what` needs `needed` and has `got`.
+    pub fn too_few(what: impl Into<String>, needed: usize, got: usize) -> Self {
         Error::TooFewPoints {
             what: what.into(),
             needed,
@@ -72,7 +74,8 @@ impl Error {
         }
     }
 
-    pub(crate) fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
+    /// [`Error::InvalidParameter`]: parameter `name` is wrong for `reason`.
+    pub fn param(name: impl Into<String>, reason: impl Into<String>) -> Self {
         Error::InvalidParameter {
             name: name.into(),
             reason: reason.into(),

@@ -9,14 +9,11 @@
 pub mod data;
 pub mod error;
 pub mod estimate;
-pub mod eval;
 pub mod geometry;
 pub mod hpr;
 pub mod model;
 pub mod parallel;
 pub mod pose;
-pub mod progress;
-pub mod record;
 pub mod sfm;
 pub mod shape;
 pub mod synth;

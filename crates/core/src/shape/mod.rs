@@ -1,5 +1,6 @@
 //! Landmark schemes and 2D/3D shapes.
 
+pub mod pixels;
 pub mod scheme;
 pub mod shapes;
 

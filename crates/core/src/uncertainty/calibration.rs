@@ -13,7 +13,7 @@
 //!
 //! A model bundle stores its calibration, fitted on faces with ground truth by
 //! [`calibrate`] (`facepose train --calibrate`); `facepose eval --protocol real` measures it by
-//! cross-validation ([`crate::eval::uncertainty`]).
+//! cross-validation (`facepose_eval::uncertainty`).
 
 use nalgebra::{Matrix3, SMatrix, SVector};
 

@@ -8,7 +8,8 @@ use facepose_app::tracking::Smoothed;
 use facepose_app::views::{ModelView, VersionView};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::validate::ValidationReport;
-use facepose_core::record::{AngleUncertainty, ImageSize};
+use facepose_core::shape::pixels::ImageSize;
+use facepose_records::AngleUncertainty;
 
 use super::error;
 use crate::proto;

@@ -17,7 +17,7 @@ use facepose_app::registry::ModelSet;
 use facepose_app::{App, Limits};
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{LandmarkStyle, Method};
-use facepose_core::record::check_coordinates;
+use facepose_core::shape::pixels::check_coordinates;
 
 use super::body::{
     ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_guarded_body, require_json,

@@ -1,7 +1,7 @@
 //! One-pass readers of the pose request bodies (`POST /v1/pose`, `POST /v1/pose:batch`).
 //!
 //! serde's derived reader would take a landmark array twice: serde_json scans it as a raw value,
-//! then [`facepose_core::record::parse_landmarks`] parses its numbers (serde_json's own float parsing,
+//! then [`facepose_records::parse_landmarks`] parses its numbers (serde_json's own float parsing,
 //! in the `float_roundtrip` mode the model bundles need, is slower still). These readers walk
 //! the body once: they parse the landmarks where they find them and hand every other member (a
 //! scheme name, a camera) to serde_json on its own bytes. They read the usual shape of a request
@@ -12,7 +12,7 @@
 use serde::de::DeserializeOwned;
 
 use super::wire::{BatchFace, BatchRequest, PoseRequest};
-use facepose_core::record::{Landmarks, parse_landmarks_at, skip_ws};
+use facepose_records::{Landmarks, parse_landmarks_at, skip_ws};
 
 /// Reads a `POST /v1/pose` body, or `None` (see the module doc).
 pub fn read_pose_request(body: &[u8]) -> Option<PoseRequest> {

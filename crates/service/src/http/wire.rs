@@ -6,9 +6,9 @@ use facepose_app::views::{ModelView, ModelsView, SchemeDetail, VersionView, Vers
 use facepose_core::estimate::Intrinsics;
 use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::{LandmarkStyle, Method};
-use facepose_core::record::{ImageSize, MAX_COORDINATE, MAX_IMAGE_SIDE};
-use facepose_core::record::{Landmarks, PoseRecord};
 use facepose_core::shape::MAX_POINTS;
+use facepose_core::shape::pixels::{ImageSize, MAX_COORDINATE, MAX_IMAGE_SIDE};
+use facepose_records::{Landmarks, PoseRecord};
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 use utoipa::ToSchema;

@@ -9,12 +9,12 @@ use rand::{Rng, SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::error::Result;
-use crate::geometry::procrustes::rms_distance3;
-use crate::geometry::{EulerAngles, Scaling, WeakPerspective, align3};
 use crate::progress::{Observer, Phase, PhaseReport};
-use crate::sfm::{SfmOptions, reconstruct};
-use crate::shape::{Scheme, Shape2};
+use facepose_core::error::Result;
+use facepose_core::geometry::procrustes::rms_distance3;
+use facepose_core::geometry::{EulerAngles, Scaling, WeakPerspective, align3};
+use facepose_core::sfm::{SfmOptions, reconstruct};
+use facepose_core::shape::{Scheme, Shape2};
 
 /// One condition of the protocol.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -64,7 +64,7 @@ pub fn synthetic_views(
                 ),
             )?;
             let noise = Normal::new(0.0, noise_mm * s)
-                .map_err(|e| crate::Error::param("noise", e.to_string()))?;
+                .map_err(|e| facepose_core::Error::param("noise", e.to_string()))?;
             let pts = shape
                 .iter()
                 .map(|x| cam.project(x) + Vector2::new(noise.sample(rng), noise.sample(rng)))
@@ -101,7 +101,7 @@ pub fn sfm_check(
 ) -> Result<Vec<SfmResult>> {
     let nose = scheme.anchors.nose_tip[0];
     if let Some(short) = shapes.iter().position(|s| s.len() != scheme.len()) {
-        return Err(crate::Error::param(
+        return Err(facepose_core::Error::param(
             "shapes",
             format!(
                 "shape {short} has {} points, the scheme {} has {}",
@@ -115,7 +115,7 @@ pub fn sfm_check(
         .iter()
         .any(|c| 5 * c.missing_per_view > scheme.len())
     {
-        return Err(crate::Error::param(
+        return Err(facepose_core::Error::param(
             "missing_per_view",
             format!(
                 "at most {} points per view, so that every point stays in four of the five views",
@@ -193,8 +193,8 @@ mod tests {
 
     #[test]
     fn outer_eye_corners_of_ibug68_are_36_and_45() {
-        let mean = &crate::model::default_model().unwrap().1.mean;
-        let a = &crate::shape::ibug68().anchors;
+        let mean = &facepose_core::model::default_model().unwrap().1.mean;
+        let a = &facepose_core::shape::ibug68().anchors;
         let want = (mean[36] - mean[45]).norm();
         let got = outer_eye_distance(mean, &a.eye_left, &a.eye_right);
         assert!((got - want).abs() < 1e-12, "{got} vs {want}");
@@ -203,7 +203,7 @@ mod tests {
     #[test]
     fn progress_counts_every_shape_of_every_condition_in_order() {
         use crate::progress::{Phase, record::Recorder};
-        let mean = crate::model::default_model().unwrap().1.mean;
+        let mean = facepose_core::model::default_model().unwrap().1.mean;
         // Three faces: the mean, wider and taller.
         let shapes: Vec<Vec<Vector3<f64>>> = [(1.0, 1.0), (1.1, 1.0), (1.0, 1.1)]
             .iter()
@@ -218,7 +218,7 @@ mod tests {
             missing_per_view,
         });
         let r = Recorder::default();
-        let rows = sfm_check(&shapes, &crate::shape::ibug68(), &conditions, 5, &r).unwrap();
+        let rows = sfm_check(&shapes, &facepose_core::shape::ibug68(), &conditions, 5, &r).unwrap();
         assert_eq!(rows.len(), 2);
         // Monotone within each phase, from 0 to the total, phases not resumed (`phases` checks).
         let phases = r.phases();
@@ -237,7 +237,7 @@ mod tests {
 
     #[test]
     fn missing_sets_leave_every_point_in_four_views() {
-        let mean = crate::model::default_model().unwrap().1.mean;
+        let mean = facepose_core::model::default_model().unwrap().1.mean;
         let mut rng = StdRng::seed_from_u64(1);
         for m in [1, 5, 10, 13] {
             let views = synthetic_views(&mean, &mut rng, 0.0, m).unwrap();

@@ -25,13 +25,13 @@ use rand::{Rng, SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
-use crate::geometry::rotation_kalman::{KalmanParams, RotationKalman};
-use crate::geometry::smoothing::{OneEuroParams, RotationOneEuro};
-use crate::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
-use crate::model::PoseModel;
-use crate::pose::{Method, estimate};
-use crate::shape::Shape2;
+use facepose_core::error::{Error, Result};
+use facepose_core::geometry::rotation_kalman::{KalmanParams, RotationKalman};
+use facepose_core::geometry::smoothing::{OneEuroParams, RotationOneEuro};
+use facepose_core::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
+use facepose_core::model::PoseModel;
+use facepose_core::pose::{Method, estimate};
+use facepose_core::shape::Shape2;
 
 /// The landmark noise of a wild frame, share of the IOD (a detector that lost the face for a
 /// frame: motion blur, a hand passing).

@@ -20,7 +20,7 @@ fn err(e: impl std::fmt::Display) -> PlotError {
     PlotError(e.to_string())
 }
 
-static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans-subset.ttf");
+static FONT: &[u8] = include_bytes!("../assets/fonts/DejaVuSans-subset.ttf");
 
 fn register_font() {
     static ONCE: Once = Once::new();

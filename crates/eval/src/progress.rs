@@ -33,7 +33,7 @@ pub enum Phase {
 }
 
 /// Where a computation reports its [`Progress`]. `Sync`, so that a computation may report from
-/// the threads of [`crate::parallel`]; the calls of one computation still follow the contract
+/// the threads of [`facepose_core::parallel`]; the calls of one computation still follow the contract
 /// of the module docs (a parallel one serializes them).
 pub trait Observer: Sync {
     fn observe(&self, progress: Progress);

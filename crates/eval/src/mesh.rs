@@ -18,13 +18,13 @@ use rand::{Rng, SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
-use crate::geometry::convention::wrap_deg;
-use crate::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
-use crate::model::PoseModel;
-use crate::model::mesh::MEDIAPIPE478;
-use crate::pose::{Method, estimate};
-use crate::shape::Shape2;
+use facepose_core::error::{Error, Result};
+use facepose_core::geometry::convention::wrap_deg;
+use facepose_core::geometry::{EulerAngles, WeakPerspective, geodesic_deg};
+use facepose_core::model::PoseModel;
+use facepose_core::model::mesh::MEDIAPIPE478;
+use facepose_core::pose::{Method, estimate};
+use facepose_core::shape::Shape2;
 
 /// Parameters of the protocol.
 #[derive(Debug, Clone, PartialEq, Serialize)]

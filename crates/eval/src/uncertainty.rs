@@ -13,12 +13,12 @@ use serde::Serialize;
 
 use super::aflw::{Source, landmarks};
 use super::plot::{Panel, Series};
-use crate::data::AflwFace;
-use crate::error::Result;
-use crate::model::PoseModel;
-use crate::pose::{Method, estimate};
-use crate::uncertainty::calibration::{Sample, calibrate};
-use crate::uncertainty::{Calibration, PointClass, Uncertainty};
+use facepose_core::data::AflwFace;
+use facepose_core::error::Result;
+use facepose_core::model::PoseModel;
+use facepose_core::pose::{Method, estimate};
+use facepose_core::uncertainty::calibration::{Sample, calibrate};
+use facepose_core::uncertainty::{Calibration, PointClass, Uncertainty};
 
 /// Folds of the cross-validation.
 pub const FOLDS: usize = 10;

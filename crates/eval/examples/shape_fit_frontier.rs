@@ -19,9 +19,9 @@
 use std::hint::black_box;
 use std::time::Instant;
 
-use facepose_core::eval::aflw::{Source, evaluate, landmarks};
 use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
+use facepose_eval::aflw::{Source, evaluate, landmarks};
 use facepose_files::data::{data_dir, load_aflw};
 
 /// The (fit, robust) component counts shown without arguments: every component (the fit
@@ -107,7 +107,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .fold(f64::INFINITY, f64::min)
             })
             .collect();
-        let three = |r: &facepose_core::eval::aflw::AflwRow| {
+        let three = |r: &facepose_eval::aflw::AflwRow| {
             format!(
                 "{:.3} ({:.3} / {:.3} / {:.3})",
                 r.mae_mean, r.mae_pitch, r.mae_yaw, r.mae_roll

@@ -11,11 +11,11 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use crate::error::Result;
-use crate::geometry::EulerAngles;
-use crate::hpr::{Confusion, DepthTest, KatzHpr, MeshVisibility, PaperHpr, SurfacePoint};
 use crate::progress::{Observer, Phase, PhaseReport};
-use crate::synth::AngleRange;
+use facepose_core::error::Result;
+use facepose_core::geometry::EulerAngles;
+use facepose_core::hpr::{Confusion, DepthTest, KatzHpr, MeshVisibility, PaperHpr, SurfacePoint};
+use facepose_core::synth::AngleRange;
 
 /// The methods compared.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -75,7 +75,7 @@ pub fn hpr_table(
         .iter()
         .position(|v| v.is_empty() || v.iter().any(|&i| i >= vertices.len()))
     {
-        return Err(crate::Error::param(
+        return Err(facepose_core::Error::param(
             format!("ibug68 mapping[{k}]"),
             format!(
                 "needs one or more mesh vertex indices below {}, got {:?}",

@@ -33,18 +33,18 @@ use rand::{Rng, SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::error::{Error, Result};
-use crate::geometry::convention::wrap_deg;
-use crate::geometry::procrustes::centre3;
-use crate::geometry::{EulerAngles, geodesic_deg};
-use crate::hpr::PaperHpr;
-use crate::model::{
+use crate::progress::{Observer, Phase, PhaseReport};
+use facepose_core::error::{Error, Result};
+use facepose_core::geometry::convention::wrap_deg;
+use facepose_core::geometry::procrustes::centre3;
+use facepose_core::geometry::{EulerAngles, geodesic_deg};
+use facepose_core::hpr::PaperHpr;
+use facepose_core::model::{
     BasisSource, PoseModel, RegressionParams, Subset, TrainOptions, train_from_population,
 };
-use crate::pose::{Method, estimate};
-use crate::progress::{Observer, Phase, PhaseReport};
-use crate::shape::{Scheme, Shape2};
-use crate::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
+use facepose_core::pose::{Method, estimate};
+use facepose_core::shape::{Scheme, Shape2};
+use facepose_core::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
 
 /// One method on one scheme: a row of Table 1.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -360,7 +360,11 @@ struct Acc {
 
 impl Acc {
     /// Adds one estimate; returns the mean of its yaw and pitch absolute errors.
-    fn add(&mut self, result: Result<crate::pose::Estimate>, truth: &EulerAngles) -> Option<f64> {
+    fn add(
+        &mut self,
+        result: Result<facepose_core::pose::Estimate>,
+        truth: &EulerAngles,
+    ) -> Option<f64> {
         let Ok(e) = result else {
             self.failures += 1;
             return None;

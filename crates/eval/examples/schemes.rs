@@ -10,9 +10,9 @@
     clippy::disallowed_types
 )]
 
-use facepose_core::eval::plot::{LandmarkPanel, landmarks_png};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
+use facepose_eval::plot::{LandmarkPanel, landmarks_png};
 use nalgebra::Vector2;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -5,12 +5,12 @@
 
 use serde::Serialize;
 
-use crate::data::AflwFace;
-use crate::geometry::convention::wrap_deg;
-use crate::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
-use crate::model::PoseModel;
-use crate::pose::{Method, estimate};
-use crate::shape::{DLIB5_IN_IBUG68, Shape2, ibug68};
+use facepose_core::data::AflwFace;
+use facepose_core::geometry::convention::wrap_deg;
+use facepose_core::geometry::{EulerAngles, geodesic_deg, rotation_from_rows};
+use facepose_core::model::PoseModel;
+use facepose_core::pose::{Method, estimate};
+use facepose_core::shape::{DLIB5_IN_IBUG68, Shape2, ibug68};
 
 /// Where the landmarks come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -78,10 +78,10 @@ pub struct AflwRow {
     pub angles: Vec<([f64; 3], [f64; 3])>,
 }
 
-static IBUG68: std::sync::LazyLock<crate::shape::Scheme> = std::sync::LazyLock::new(ibug68);
+static IBUG68: std::sync::LazyLock<facepose_core::shape::Scheme> = std::sync::LazyLock::new(ibug68);
 
 /// The landmarks of a face from a source, in the scheme the source is given in.
-pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str, Shape2)> {
+pub fn landmarks(face: &AflwFace, source: Source) -> facepose_core::Result<(&'static str, Shape2)> {
     let to_shape =
         |pts: &[[f64; 2]]| Shape2::from_options(&pts.iter().map(|p| Some(*p)).collect::<Vec<_>>());
     match source {
@@ -101,7 +101,7 @@ pub fn landmarks(face: &AflwFace, source: Source) -> crate::Result<(&'static str
         Source::Dlib5 => {
             let pts = &face.landmarks_reannotated;
             if pts.len() != IBUG68.len() {
-                return Err(crate::Error::PointCount {
+                return Err(facepose_core::Error::PointCount {
                     what: "re-annotated landmarks".into(),
                     expected: IBUG68.len(),
                     got: pts.len(),
@@ -442,8 +442,8 @@ pub fn error_by_yaw(rows: &[AflwRow]) -> Vec<super::plot::Panel> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{WeakPerspective, rotation_rows};
-    use crate::model::default_model;
+    use facepose_core::geometry::{WeakPerspective, rotation_rows};
+    use facepose_core::model::default_model;
     use nalgebra::Vector2;
 
     /// A row over no faces, for tests that set its per-face angles.
@@ -598,7 +598,7 @@ mod tests {
     }
 }
 
-/// The misfit ([`crate::pose::Estimate::misfit`]) of real faces, per source and method: the
+/// The misfit ([`facepose_core::pose::Estimate::misfit`]) of real faces, per source and method: the
 /// figures behind the "does it look like a face" thresholds.
 #[derive(Debug, Clone, Serialize)]
 pub struct MisfitRow {
@@ -633,7 +633,7 @@ pub fn misfits(
                         flagged += usize::from(!e.warnings.is_empty());
                         m.push(e.misfit);
                     }
-                    Err(crate::Error::NotAFace { misfit, .. }) => {
+                    Err(facepose_core::Error::NotAFace { misfit, .. }) => {
                         flagged += 1;
                         m.push(misfit);
                     }
