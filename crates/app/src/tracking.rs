@@ -58,6 +58,8 @@ impl TrackFilter {
 struct Track {
     filter: TrackFilter,
     last_seen: u64,
+    /// The stream's clock ([`Session::clock`]) at the track's last update, seconds.
+    last_clock: f64,
 }
 
 /// What smoothing did to one pose.
@@ -77,8 +79,11 @@ pub struct Session {
     tracks: HashMap<String, Track>,
     frames: u64,
     last_timestamp_us: Option<i64>,
-    /// The time step of the current frame, seconds.
-    dt: f64,
+    /// The stream's time at the current frame, seconds since its first: each frame advances it
+    /// by the time since the previous stamped frame, else by [`DEFAULT_DT`]. A track steps its
+    /// filter by the time since its own last update on this clock, so a face the detector lost
+    /// for some frames is predicted across the whole gap, not one frame.
+    clock: f64,
 }
 
 /// A face's track: its client id, else its place in the frame.
@@ -107,11 +112,11 @@ impl Session {
         self.smoothing.as_ref().map(|(f, _)| f)
     }
 
-    /// Starts a frame taken at `timestamp_us` (0: not given): its time step is the time since
-    /// the last stamped frame, else [`DEFAULT_DT`].
+    /// Starts a frame taken at `timestamp_us` (0: not given): the stream's clock advances by
+    /// the time since the last stamped frame, else by [`DEFAULT_DT`].
     pub fn begin_frame(&mut self, timestamp_us: i64) {
         self.frames += 1;
-        self.dt = match self.last_timestamp_us {
+        self.clock += match self.last_timestamp_us {
             Some(prev) if timestamp_us > prev && timestamp_us > 0 => {
                 (timestamp_us - prev) as f64 * 1e-6
             }
@@ -128,21 +133,29 @@ impl Session {
         let Some((_, template)) = &self.smoothing else {
             return Smoothed::default();
         };
-        let frames = self.frames;
+        let (frames, clock) = (self.frames, self.clock);
         let track = self.tracks.entry(key).or_insert_with(|| Track {
             filter: template.clone(),
             last_seen: frames,
+            last_clock: clock,
         });
         if frames - track.last_seen > TRACK_TTL_FRAMES {
             track.filter.reset();
         }
+        // A new track's first step has no time before it: the filters start from the estimate
+        // whatever the step, and a positive one keeps their checks quiet.
+        let dt = match clock - track.last_clock {
+            dt if dt > 0.0 => dt,
+            _ => DEFAULT_DT,
+        };
         track.last_seen = frames;
+        track.last_clock = clock;
         let (r, gated) = match &mut track.filter {
             TrackFilter::Kalman(k) => {
-                let out = k.filter(&pose.rotation, pose.turn_cov.as_ref(), self.dt);
+                let out = k.filter(&pose.rotation, pose.turn_cov.as_ref(), dt);
                 (out.rotation, !out.accepted)
             }
-            TrackFilter::OneEuro(e) => (e.filter(&pose.rotation, self.dt), false),
+            TrackFilter::OneEuro(e) => (e.filter(&pose.rotation, dt), false),
         };
         let a = EulerAngles::from_rotation(&r);
         pose.record.yaw = a.yaw;
@@ -163,5 +176,101 @@ impl Session {
             self.tracks
                 .retain(|_, t| now - t.last_seen <= TRACK_TTL_FRAMES);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use facepose_core::geometry::Rotation;
+    use facepose_core::pose::Method;
+    use facepose_records::PoseRecord;
+
+    /// A pose turned `yaw` degrees, as an estimate would give it, with no uncertainty (the
+    /// Kalman filter then takes its default deviation).
+    fn pose(yaw: f64) -> FacePose {
+        let rotation: Rotation = EulerAngles::new(yaw, 0.0, 0.0).unwrap().to_rotation();
+        FacePose {
+            record: PoseRecord {
+                yaw,
+                pitch: 0.0,
+                roll: 0.0,
+                rotation: rotation_rows(&rotation),
+                visible: vec![],
+                residual: 0.0,
+                method: Method::Fit,
+                translation: None,
+                warnings: vec![],
+                uncertainty: None,
+            },
+            rotation,
+            turn_cov: None,
+            scheme: "five".into(),
+        }
+    }
+
+    /// A track the detector lost for some frames is stepped across the whole gap when it comes
+    /// back, as a filter fed only that track's frames at their own times would be: the
+    /// reference is the core's filter itself, given the true time since the track's last frame.
+    #[test]
+    fn a_track_that_skips_frames_is_predicted_across_its_gap() {
+        let params = KalmanParams::default();
+        let mut session = Session::default();
+        session.configure(Some(Filter::Kalman(params))).unwrap();
+        let mut reference = RotationKalman::new(params).unwrap();
+        // 30 frames a second; the face turns 60°/s and is lost for frames 10 to 35 (26
+        // frames) while another face stays in view.
+        let (fps, speed) = (30.0, 60.0);
+        let stamp = |frame: u32| 1_000_000 + (f64::from(frame) / fps * 1e6).round() as i64;
+        let mut last_seen_frame = None;
+        let mut checked = 0;
+        for frame in 0..60u32 {
+            let t = f64::from(frame) / fps;
+            session.begin_frame(stamp(frame));
+            let mut other = pose(-10.0);
+            session.smooth("other".into(), &mut other);
+            if (10..36).contains(&frame) {
+                session.end_frame();
+                continue;
+            }
+            let mut p = pose(speed * t);
+            let got = session.smooth("face".into(), &mut p);
+            assert!(got.smoothed);
+            let dt =
+                last_seen_frame.map_or(DEFAULT_DT, |f| (stamp(frame) - stamp(f)) as f64 * 1e-6);
+            let want = reference.filter(&pose(speed * t).rotation, None, dt);
+            let error = facepose_core::geometry::geodesic_deg(&p.rotation, &want.rotation);
+            assert!(
+                error < 1e-9,
+                "frame {frame}: the track's output is {error}° from the filter stepped by {dt} s"
+            );
+            last_seen_frame = Some(frame);
+            checked += 1;
+            session.end_frame();
+        }
+        assert_eq!(checked, 34);
+    }
+
+    /// Without timestamps every frame is one [`DEFAULT_DT`], and a track's step still counts
+    /// the frames it missed.
+    #[test]
+    fn without_timestamps_a_gap_is_counted_in_frames() {
+        let mut session = Session::default();
+        session
+            .configure(Some(Filter::Kalman(KalmanParams::default())))
+            .unwrap();
+        for _ in 0..3 {
+            session.begin_frame(0);
+        }
+        let mut first = pose(0.0);
+        session.smooth("face".into(), &mut first);
+        let before = session.tracks["face"].last_clock;
+        for _ in 0..5 {
+            session.begin_frame(0);
+        }
+        let mut back = pose(5.0);
+        session.smooth("face".into(), &mut back);
+        let gap = session.tracks["face"].last_clock - before;
+        assert!((gap - 5.0 * DEFAULT_DT).abs() < 1e-12, "{gap}");
     }
 }
