@@ -17,6 +17,7 @@ use facepose_records::{Landmarks, PoseRecord};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
+use super::names::Names;
 use super::{CliError, Finished};
 
 /// What the exit status of `facepose estimate` means (its `--help` shows this).
@@ -58,9 +59,9 @@ pub struct EstimateArgs {
     /// `"scheme"` takes precedence.
     #[arg(long)]
     scheme: Option<String>,
-    /// Estimator (auto picks the most accurate for the input).
-    #[arg(long, default_value = "auto")]
-    method: String,
+    /// Estimator (auto picks the most accurate for the input; README "Methods").
+    #[arg(long, default_value = "auto", value_parser = Names::<Method>::new(&Method::NAMES))]
+    method: Method,
     /// Model bundle directory (default: the embedded default model).
     #[arg(long)]
     model: Option<PathBuf>,
@@ -78,8 +79,12 @@ pub struct EstimateArgs {
     /// How the landmarks were made: `projected` (3D-style: hidden points are where they would
     /// project) or `contour` (2D-style: hidden jaw points on the visible outline). A JSON
     /// line's own `"landmark_style"` takes precedence.
-    #[arg(long, default_value = "projected")]
-    landmark_style: String,
+    #[arg(
+        long,
+        default_value = "projected",
+        value_parser = Names::<LandmarkStyle>::new(&LandmarkStyle::NAMES)
+    )]
+    landmark_style: LandmarkStyle,
     /// The image's size `width,height` in pixels for every face: the landmarks are then
     /// normalized coordinates, fractions of the width and height (MediaPipe's x, y). A JSON
     /// line's own `"image_size": [w, h]` takes precedence.
@@ -127,8 +132,8 @@ struct LineOptions {
 }
 
 pub fn run(a: EstimateArgs) -> Result<(), CliError> {
-    let method: Method = a.method.parse()?;
-    let style: LandmarkStyle = a.landmark_style.parse()?;
+    let method = a.method;
+    let style = a.landmark_style;
     let (_, model) = super::load_model(a.model.as_deref())?;
     if let Some(s) = &a.scheme {
         model.scheme(s)?;

@@ -5,6 +5,7 @@ pub mod eval;
 pub mod eval_sfm;
 pub mod healthcheck;
 pub mod hpr;
+pub mod names;
 pub mod progress;
 pub mod reconstruct;
 pub mod serve;

@@ -32,7 +32,7 @@ pub fn run(a: ReconstructArgs) -> Result<(), CliError> {
         format!(
             "unknown scheme {:?} (known: {})",
             set.scheme,
-            Scheme::BUILTIN.join(", ")
+            Scheme::builtin_names().join(", ")
         )
     })?;
     let nose = *scheme

@@ -52,9 +52,11 @@ pub struct TrainArgs {
     /// The regression's pose grids.
     #[arg(long, value_enum, default_value_t = Grid::Wide)]
     grid: Grid,
-    /// Sub-schemes to serve besides the model's own.
-    #[arg(long, value_delimiter = ',', default_value = "inner51,five,dlib5")]
-    subsets: Vec<String>,
+    /// Sub-schemes to serve besides the model's own. Default: every built-in subset of the
+    /// shapes' scheme (ibug68: inner51, five, dlib5; another scheme with the five anchors:
+    /// five).
+    #[arg(long, value_delimiter = ',')]
+    subsets: Option<Vec<String>>,
     /// Principal components of the shape basis for `fit-shape` (0: none); ignored with
     /// --morphable.
     #[arg(long, default_value_t = 40)]
@@ -161,7 +163,7 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
     let scheme = Scheme::builtin(&scheme_name).ok_or_else(|| {
         format!(
             "unknown scheme {scheme_name:?} (known: {})",
-            Scheme::BUILTIN.join(", ")
+            Scheme::builtin_names().join(", ")
         )
     })?;
     let total = shapes.len();
@@ -188,6 +190,10 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         )
         .into());
     }
+    let subsets = a
+        .subsets
+        .clone()
+        .unwrap_or_else(|| facepose_core::shape::builtin::default_subsets(&scheme.name));
     progress.stage(format_args!(
         "training on {} shapes ({} grid, subsets {})",
         shapes.len(),
@@ -195,14 +201,14 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
             Grid::Paper => "paper",
             Grid::Wide => "wide",
         },
-        a.subsets.join(",")
+        subsets.join(",")
     ));
     let opts = TrainOptions {
         regression: match a.grid {
             Grid::Paper => RegressionParams::paper(),
             Grid::Wide => RegressionParams::wide(),
         },
-        subsets: a.subsets.clone(),
+        subsets,
         ..TrainOptions::default()
     };
     let morphable = match &a.morphable {

@@ -17,6 +17,7 @@ mod hpr_mesh;
 mod mediapipe;
 mod model_bundle;
 mod opencv_frame;
+mod registries;
 mod service_process;
 mod sfm_bfm;
 mod uncertainty_aflw;

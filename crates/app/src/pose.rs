@@ -66,7 +66,8 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
     };
     if !method.is_supported_by(&model.model) {
         return Err(ServiceError::invalid(format!(
-            "method fit-shape needs a model with a shape basis; model {:?} has none",
+            "method {method} needs {}; model {:?} has none",
+            method.spec().needs.what(),
             model.name
         )));
     }

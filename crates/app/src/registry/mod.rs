@@ -104,7 +104,7 @@ impl ServedModel {
         self.model.schemes().map(|s| (s.name.as_str(), s.len()))
     }
 
-    /// The methods it supports (`fit-shape` needs a shape basis).
+    /// The methods it supports (what each needs: `facepose_core::pose::METHODS`).
     pub fn methods(&self) -> Vec<Method> {
         Method::ALL
             .into_iter()

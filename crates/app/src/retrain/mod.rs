@@ -132,7 +132,7 @@ fn named_or_defined_scheme(spec: Option<SchemeSpec>) -> Result<Scheme, ServiceEr
         Some(SchemeSpec::Name(n)) => Scheme::builtin(&n).ok_or_else(|| {
             ServiceError::invalid(format!(
                 "scheme {n:?} is not built in ({}); send a scheme definition instead",
-                Scheme::BUILTIN.join(", ")
+                Scheme::builtin_names().join(", ")
             ))
         }),
         Some(SchemeSpec::Definition(s)) => {

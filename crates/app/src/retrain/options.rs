@@ -135,9 +135,7 @@ pub fn check_options(raw: &RawOptions, scheme: &Scheme) -> Result<UploadOptions,
     }
     let subsets = match &raw.subsets {
         Some(s) => s.clone(),
-        None if scheme.name == "ibug68" => vec!["inner51".into(), "five".into(), "dlib5".into()],
-        None if scheme.name == "five" => vec![],
-        None => vec!["five".into()],
+        None => facepose_core::shape::builtin::default_subsets(&scheme.name),
     };
     for (k, name) in subsets.iter().enumerate() {
         if *name == scheme.name || subsets[..k].contains(name) {

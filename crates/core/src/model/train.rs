@@ -17,7 +17,8 @@ use crate::estimate::visibility_map::VisibilityMap;
 use crate::geometry::{EulerAngles, WeakPerspective};
 use crate::hpr::PaperHpr;
 use crate::parallel;
-use crate::shape::{DLIB5_IN_IBUG68, Scheme, Shape2, Shape3, dlib5, five};
+use crate::shape::builtin::{BuiltinScheme, PointMap, default_subsets};
+use crate::shape::{Scheme, Shape2, Shape3};
 use crate::synth::{AngleRange, PoseGrid, ViewSynthesizer, image_of};
 
 /// Pose grids and ridge parameter of the regressions.
@@ -144,7 +145,7 @@ impl Default for TrainOptions {
     fn default() -> Self {
         TrainOptions {
             regression: RegressionParams::wide(),
-            subsets: vec!["inner51".into(), "five".into(), "dlib5".into()],
+            subsets: default_subsets("ibug68"),
             seed: 2011,
         }
     }
@@ -262,17 +263,27 @@ pub fn subset_of(scheme: &Scheme, name: &str) -> Result<(Scheme, SubsetMap)> {
     if name == scheme.name {
         return Ok((scheme.clone(), SubsetMap::Own));
     }
-    match (scheme.name.as_str(), name) {
-        (_, "five") => Ok((five(), SubsetMap::Anchors)),
-        ("ibug68", "dlib5") => Ok((dlib5(), SubsetMap::Indices(DLIB5_IN_IBUG68.to_vec()))),
-        ("ibug68", "inner51") => {
-            let idx: Vec<usize> = (17..68).collect();
-            Ok((scheme.subset("inner51", &idx)?, SubsetMap::Indices(idx)))
-        }
-        _ => Err(Error::InvalidScheme {
+    let Some((built_in, map)) =
+        BuiltinScheme::find(name).and_then(|b| Some((b, b.is_subset_of(&scheme.name)?)))
+    else {
+        return Err(Error::InvalidScheme {
             scheme: name.into(),
             reason: format!("not a known subset of {}", scheme.name),
-        }),
+        });
+    };
+    let own = || {
+        built_in.build().ok_or_else(|| Error::InvalidScheme {
+            scheme: name.into(),
+            reason: "a built-in subset without its definition".into(),
+        })
+    };
+    match map {
+        PointMap::Anchors => Ok((own()?, SubsetMap::Anchors)),
+        PointMap::Range(a, b) => {
+            let idx: Vec<usize> = (a..b).collect();
+            Ok((scheme.subset(name, &idx)?, SubsetMap::Indices(idx)))
+        }
+        PointMap::Indices(idx) => Ok((own()?, SubsetMap::Indices(idx.to_vec()))),
     }
 }
 

@@ -195,19 +195,20 @@ impl Scheme {
         self.points.is_empty()
     }
 
-    /// A built-in scheme by name (`ibug68`, `inner51`, `five`, `dlib5`).
+    /// A built-in scheme by name ([`super::builtin::BUILTIN_SCHEMES`], the mesh schemes aside:
+    /// a model's face mesh builds those).
     pub fn builtin(name: &str) -> Option<Scheme> {
-        match name {
-            "ibug68" => Some(ibug68()),
-            "inner51" => Some(inner51()),
-            "five" => Some(five()),
-            "dlib5" => Some(dlib5()),
-            _ => None,
-        }
+        super::builtin::BuiltinScheme::find(name)?.build()
     }
 
-    /// The names of the built-in schemes.
-    pub const BUILTIN: [&'static str; 4] = ["ibug68", "inner51", "five", "dlib5"];
+    /// The names [`Scheme::builtin`] knows: the built-in schemes a set of shapes can be in.
+    pub fn builtin_names() -> Vec<&'static str> {
+        super::builtin::BUILTIN_SCHEMES
+            .iter()
+            .filter(|b| b.build().is_some())
+            .map(|b| b.name)
+            .collect()
+    }
 
     /// The sub-scheme made of `indices` of this one (anchors, mirror and contour carried over).
     /// Fails when an anchor or a mirror partner is not among the kept points.
@@ -310,13 +311,6 @@ pub fn ibug68() -> Scheme {
         .expect("the built-in ibug68 scheme is valid")
 }
 
-/// ibug68 points 17-67 (no jaw): the paper's 50-point set plus the inner mouth corner it lacks.
-pub fn inner51() -> Scheme {
-    ibug68()
-        .subset("inner51", &(17..68).collect::<Vec<_>>())
-        .expect("inner51 keeps every anchor of ibug68")
-}
-
 /// The five-point scheme: eye centres, nose tip, mouth corners (image-left first).
 pub fn five() -> Scheme {
     let points = [
@@ -372,6 +366,7 @@ pub fn dlib5() -> Scheme {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::shape::inner51;
 
     #[test]
     fn a_subset_past_the_end_is_an_error() {
@@ -389,7 +384,11 @@ mod tests {
         assert_eq!(i51.anchors.nose_tip, vec![13]);
         assert_eq!(i51.anchors.mouth_left, vec![31]);
         assert!(i51.contour.is_empty());
-        for name in Scheme::BUILTIN {
+        assert_eq!(
+            Scheme::builtin_names(),
+            ["ibug68", "inner51", "five", "dlib5"]
+        );
+        for name in Scheme::builtin_names() {
             assert_eq!(Scheme::builtin(name).unwrap().name, name);
         }
         assert!(Scheme::builtin("mediapipe").is_none());

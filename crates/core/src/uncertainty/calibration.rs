@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use super::covariance::{MIN_RAW_SD_DEG, RawSpread};
 use crate::error::{Error, Result};
 use crate::pose::Method;
+pub use crate::shape::PointClass;
 
 /// The 95% quantile of the standard normal: a central 90% interval is ± this many standard
 /// deviations.
@@ -37,41 +38,6 @@ pub const COVERAGE: f64 = 0.9;
 
 /// Features of the calibration's model.
 pub const N_FEATURES: usize = 5;
-
-/// What kind of landmarks the estimate stands on: the dense schemes (68, 51, MediaPipe's mesh)
-/// and each five-point scheme apart (their points differ, and so do their errors).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PointClass {
-    Dense,
-    /// Eye centres, nose tip, mouth corners (`five`), and any other scheme of five points or
-    /// fewer.
-    Five,
-    /// dlib's five points (eye corners, nose base).
-    Dlib5,
-}
-
-impl PointClass {
-    /// The class of scheme `name` of `n` points.
-    pub fn of_scheme(name: &str, n: usize) -> Self {
-        match (name, n) {
-            ("dlib5", _) => PointClass::Dlib5,
-            (_, ..=5) => PointClass::Five,
-            _ => PointClass::Dense,
-        }
-    }
-
-    /// Every class, in the order of calibrations.
-    pub const ALL: [PointClass; 3] = [PointClass::Dense, PointClass::Five, PointClass::Dlib5];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            PointClass::Dense => "dense",
-            PointClass::Five => "five",
-            PointClass::Dlib5 => "dlib5",
-        }
-    }
-}
 
 /// One angle's model: `ln σ = coefficients · x`, half-width `multiplier · σ`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

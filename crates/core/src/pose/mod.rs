@@ -1,7 +1,10 @@
 //! One interface over every estimator: landmarks in a scheme the model serves -> rotation,
 //! angles, per-point visibility at the estimated pose, a fit residual and the method used.
 
-use std::borrow::Cow;
+mod method;
+
+pub use method::{METHODS, Method, MethodSpec, Misfit, Needs, Ran, Runner, SubsetInput};
+
 use std::fmt;
 use std::str::FromStr;
 
@@ -10,113 +13,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::estimate::fit::{FitOptions, Hidden, fit_rigid};
-use crate::estimate::geometric::estimate_geometric;
-use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
 use crate::estimate::perspective::{Intrinsics, refine_perspective};
 use crate::geometry::EulerAngles;
 use crate::geometry::moments::Moments;
-use crate::model::{FaceMesh, MeshScheme, PoseModel, Subset, SubsetMap};
+use crate::model::{FaceMesh, MeshScheme, PoseModel, SubsetMap};
 use crate::shape::{Scheme, Shape2};
 use crate::uncertainty::{PointClass, RawSpread, Uncertainty, raw_spread};
-
-/// The estimators.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Method {
-    /// The most accurate method for the input (see [`Method::resolve`]).
-    #[default]
-    Auto,
-    /// Rigid weak-perspective fit of the mean shape.
-    Fit,
-    /// Fit with identity and expression coefficients of the morphable model.
-    FitShape,
-    /// The paper's ridge regression.
-    Regression,
-    /// The paper's modified five-point geometric method.
-    Geometry,
-}
-
-impl Method {
-    /// Every method, in the order of the docs and of listings.
-    pub const ALL: [Method; 5] = [
-        Method::Auto,
-        Method::Fit,
-        Method::FitShape,
-        Method::Regression,
-        Method::Geometry,
-    ];
-
-    /// Every method name, for messages.
-    pub const NAMES: [&'static str; Method::ALL.len()] = {
-        let mut names = [""; Method::ALL.len()];
-        let mut i = 0;
-        while i < names.len() {
-            names[i] = Method::ALL[i].name();
-            i += 1;
-        }
-        names
-    };
-
-    /// The name on every interface (kebab-case, as serde writes it).
-    pub const fn name(self) -> &'static str {
-        match self {
-            Method::Auto => "auto",
-            Method::Fit => "fit",
-            Method::FitShape => "fit-shape",
-            Method::Regression => "regression",
-            Method::Geometry => "geometry",
-        }
-    }
-
-    /// Whether `model` has what the method needs (`fit-shape`: a shape basis).
-    pub fn is_supported_by(self, model: &PoseModel) -> bool {
-        self != Method::FitShape || model.morph.is_some()
-    }
-
-    /// The method's place in [`Method::ALL`], for tables indexed by method.
-    pub fn index(self) -> usize {
-        self as usize
-    }
-
-    /// The method `auto` stands for, given the model, the subset the input is in and how many
-    /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
-    /// accurate on 68 and 51 points, the rigid fit on five (anchor means, which the shape fit
-    /// does not take).
-    pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
-        match self {
-            Method::Auto
-                if Method::FitShape.is_supported_by(model)
-                    && subset.map != SubsetMap::Anchors
-                    && present >= MIN_SHAPE_FIT_POINTS =>
-            {
-                Method::FitShape
-            }
-            Method::Auto => Method::Fit,
-            m => m,
-        }
-    }
-}
-
-impl fmt::Display for Method {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl FromStr for Method {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        Method::ALL
-            .into_iter()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                Error::param(
-                    "method",
-                    format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")),
-                )
-            })
-    }
-}
 
 /// Fewest present points for `auto` to choose the shape fit: below, the prior decides most of
 /// the shape and the rigid fit is as good.
@@ -302,90 +204,18 @@ fn estimate_in_subset(
     let method = method.resolve(model, subset, present);
     let map = &subset.map;
     let contour = &subset.scheme.contour;
-    if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
-        return Err(Error::param(
-            "camera",
-            format!(
-                "method {method} is weak-perspective only; use fit, fit-shape or auto with camera intrinsics"
-            ),
-        ));
-    }
+    let spec = method.spec();
+    spec.check_camera(opts.camera.as_ref())?;
     let fit_options = fit_options(opts.style);
-    // The fit methods keep their shape and camera for the perspective refinement.
-    let mut fitted: Option<(Cow<'_, [Vector3<f64>]>, crate::estimate::fit::RigidFit)> = None;
-    let rotation = match method {
-        Method::Fit => {
-            // The visibility map is over the model's own points; subsets without contour
-            // points have nothing to drop.
-            let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
-            let f = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)?;
-            let r = f.rotation;
-            fitted = Some((Cow::Borrowed(&subset.mean[..]), f));
-            r
-        }
-        Method::FitShape => {
-            let morph = model.morph.as_ref().ok_or_else(|| {
-                Error::param(
-                    "method",
-                    "fit-shape needs a model with a shape basis; this model has none",
-                )
-            })?;
-            let full = model.expand(subset, landmarks).ok_or_else(|| {
-                Error::param("method", format!("fit-shape does not take scheme {scheme}"))
-            })?;
-            let f = fit_morphable(
-                morph,
-                &full,
-                &model.scheme.contour,
-                Some(&model.visibility),
-                MorphOptions {
-                    rigid: fit_options,
-                    ..MorphOptions::default()
-                },
-            )?;
-            let r = f.camera.rotation;
-            // The model's own scheme takes the fit's shape and weights as they are.
-            let (shape, weights) = match &subset.map {
-                SubsetMap::Own => (f.shape, f.camera.weights),
-                map => {
-                    let shape = map.map_points(&model.scheme, &f.shape);
-                    let weights = match map {
-                        SubsetMap::Indices(idx) => {
-                            idx.iter().map(|&i| f.camera.weights[i]).collect()
-                        }
-                        _ => vec![1.0; subset.scheme.len()],
-                    };
-                    (shape, weights)
-                }
-            };
-            fitted = Some((
-                Cow::Owned(shape),
-                crate::estimate::fit::RigidFit {
-                    weights,
-                    ..f.camera
-                },
-            ));
-            r
-        }
-        Method::Regression => {
-            let hidden = |yaw: f64, pitch: f64, out: &mut [bool]| {
-                map.hidden_into(
-                    &model.scheme,
-                    model.visibility.lookup_yaw_pitch(yaw, pitch),
-                    out,
-                )
-            };
-            subset.regression.estimate(landmarks, &hidden)?.rotation
-        }
-        Method::Geometry => {
-            let five = match map {
-                SubsetMap::Anchors => landmarks.clone(),
-                SubsetMap::Own | SubsetMap::Indices(_) => landmarks.to_five(&subset.scheme)?,
-            };
-            estimate_geometric(&five, &model.geometry)?
-        }
-        Method::Auto => unreachable!("resolved above"),
+    let input = SubsetInput {
+        model,
+        subset,
+        scheme,
+        landmarks,
+        fit_options,
     };
+    // The fit methods keep their shape and camera for the perspective refinement.
+    let Ran { rotation, fitted } = spec.run(&input)?;
     // The raw spread at the answer's rotation, of the shape the method stands on.
     let spread = match &fitted {
         Some((shape, f)) => raw_spread(shape, landmarks, Some(&f.weights), &rotation),
@@ -410,7 +240,7 @@ fn estimate_in_subset(
         &subset.scheme.anchors.eye_right[..],
     );
     let (residual, mut misfit) = residual(&subset.mean, landmarks, &rotation, eyes.0, eyes.1);
-    if matches!(method, Method::Regression | Method::Geometry) {
+    if spec.misfit == Misfit::OfRigidFit {
         // Where the rigid fit cannot answer (too few points for it), there is no misfit to
         // check: NaN passes the check.
         let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
@@ -495,21 +325,9 @@ fn estimate_mesh(
 ) -> Result<Estimate> {
     check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
-    // `auto` fits the mesh: on the mesh at known poses it is exact where the shape fit through
-    // the correspondence is 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md),
-    // and it is what MediaPipe's own pose does (a fit of this mesh).
-    let method = match opts.method {
-        Method::Auto => Method::Fit,
-        m => m,
-    };
-    if opts.camera.is_some() && matches!(method, Method::Regression | Method::Geometry) {
-        return Err(Error::param(
-            "camera",
-            format!(
-                "method {method} is weak-perspective only; use fit, fit-shape or auto with camera intrinsics"
-            ),
-        ));
-    }
+    let method = opts.method.resolve_on_mesh();
+    let spec = method.spec();
+    spec.check_camera(opts.camera.as_ref())?;
     // Every method's spread is taken on the model's own points (the mesh landmarks' means),
     // where the calibration was learned: the mesh's 468 points are not 468 independent
     // measurements.
@@ -544,7 +362,7 @@ fn estimate_mesh(
     let a = &ms.scheme.anchors;
     let (residual, mut misfit) =
         residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
-    if matches!(method, Method::Regression | Method::Geometry) {
+    if spec.misfit == Misfit::OfRigidFit {
         misfit = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))
             .map_or(f64::NAN, |f| {
                 self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1

@@ -1,0 +1,434 @@
+//! The estimators, in one table: each method's name, what it needs of a model, whether it
+//! takes a camera, where its misfit comes from and how it runs. Dispatch, the name lists of
+//! messages, `--help`, the OpenAPI enum and the metrics' labels are read off [`METHODS`]; the
+//! docs that cannot be are checked against it by a test (`tests/integration/registries.rs`).
+//!
+//! Adding a method: a variant of [`Method`], its row in [`METHODS`], and its runner (a function
+//! from a [`SubsetInput`] to a [`Ran`]).
+
+use std::borrow::Cow;
+use std::fmt;
+use std::str::FromStr;
+
+use nalgebra::{Rotation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Error, Result};
+use crate::estimate::fit::{FitOptions, RigidFit, fit_rigid};
+use crate::estimate::geometric::estimate_geometric;
+use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
+use crate::estimate::perspective::Intrinsics;
+use crate::model::{PoseModel, Subset, SubsetMap};
+use crate::shape::Shape2;
+
+use super::MIN_SHAPE_FIT_POINTS;
+
+/// The estimators.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// The most accurate method for the input (see [`Method::resolve`]).
+    #[default]
+    Auto,
+    /// Rigid weak-perspective fit of the mean shape.
+    Fit,
+    /// Fit with identity and expression coefficients of the morphable model.
+    FitShape,
+    /// The paper's ridge regression.
+    Regression,
+    /// The paper's modified five-point geometric method.
+    Geometry,
+}
+
+/// What a method needs of a model beyond its mean shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Needs {
+    /// Nothing more: every model runs it.
+    Nothing,
+    /// A morphable shape basis (`PoseModel::morph`).
+    ShapeBasis,
+}
+
+impl Needs {
+    /// Whether `model` has it.
+    pub fn met_by(self, model: &PoseModel) -> bool {
+        match self {
+            Needs::Nothing => true,
+            Needs::ShapeBasis => model.morph.is_some(),
+        }
+    }
+
+    /// What it is, for messages ("method fit-shape needs a model with a shape basis").
+    pub fn what(self) -> &'static str {
+        match self {
+            Needs::Nothing => "nothing",
+            Needs::ShapeBasis => "a model with a shape basis",
+        }
+    }
+}
+
+/// Where an estimate's misfit ([`super::Estimate::misfit`]) comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Misfit {
+    /// The method's own pose: it fits the landmarks.
+    OfOwnPose,
+    /// A rigid fit of the same landmarks: the method's pose can be poor where the landmarks
+    /// are fine (the paper's methods), so its own misfit would blame the landmarks.
+    OfRigidFit,
+}
+
+/// What a method's runner gets: the landmarks in a scheme of the model's points.
+pub struct SubsetInput<'a> {
+    pub model: &'a PoseModel,
+    pub subset: &'a Subset,
+    /// The scheme's name as the caller gave it, for messages.
+    pub scheme: &'a str,
+    pub landmarks: &'a Shape2,
+    pub fit_options: FitOptions,
+}
+
+/// What a runner returns: the rotation and, for the fit methods, the shape they fitted (in the
+/// subset's points) with the fit's camera, which the perspective refinement and the raw spread
+/// start from.
+pub struct Ran<'a> {
+    pub rotation: Rotation3<f64>,
+    pub fitted: Option<(Cow<'a, [Vector3<f64>]>, RigidFit)>,
+}
+
+/// A method's runner.
+pub type Runner = for<'a> fn(&SubsetInput<'a>) -> Result<Ran<'a>>;
+
+/// One estimator: everything the code and the docs say of it.
+pub struct MethodSpec {
+    pub method: Method,
+    /// The name on every interface (kebab-case, as serde writes it).
+    pub name: &'static str,
+    /// One line for listings and `--help`.
+    pub summary: &'static str,
+    pub needs: Needs,
+    /// Refines its pose under full perspective when the request has camera intrinsics; the
+    /// others are weak-perspective by construction and refuse a camera.
+    pub perspective: bool,
+    pub misfit: Misfit,
+    /// How it runs on a subset of the model's points (`None`: `auto`, which resolves first).
+    run: Option<Runner>,
+}
+
+/// Every method, in the order of the docs and of listings ([`Method::ALL`] follows it).
+pub const METHODS: [MethodSpec; 5] = [
+    MethodSpec {
+        method: Method::Auto,
+        name: "auto",
+        summary: "the most accurate method for the input: fit-shape for 12 or more points of \
+                  ibug68 or inner51, fit otherwise (a MediaPipe mesh is fitted whole)",
+        needs: Needs::Nothing,
+        perspective: true,
+        misfit: Misfit::OfOwnPose,
+        run: None,
+    },
+    MethodSpec {
+        method: Method::Fit,
+        name: "fit",
+        summary: "a robust rigid weak-perspective fit of the mean 3D shape",
+        needs: Needs::Nothing,
+        perspective: true,
+        misfit: Misfit::OfOwnPose,
+        run: Some(run_fit),
+    },
+    MethodSpec {
+        method: Method::FitShape,
+        name: "fit-shape",
+        summary: "the MAP fit of the morphable shape basis (identity and expression) and the \
+                  pose",
+        needs: Needs::ShapeBasis,
+        perspective: true,
+        misfit: Misfit::OfOwnPose,
+        run: Some(run_fit_shape),
+    },
+    MethodSpec {
+        method: Method::Regression,
+        name: "regression",
+        summary: "the paper's ridge regression from the normalized 2D shape (§4.2)",
+        needs: Needs::Nothing,
+        perspective: false,
+        misfit: Misfit::OfRigidFit,
+        run: Some(run_regression),
+    },
+    MethodSpec {
+        method: Method::Geometry,
+        name: "geometry",
+        summary: "the paper's modified five-point geometric method (§4.1)",
+        needs: Needs::Nothing,
+        perspective: false,
+        misfit: Misfit::OfRigidFit,
+        run: Some(run_geometry),
+    },
+];
+
+impl Method {
+    /// Every method, in the order of [`METHODS`].
+    pub const ALL: [Method; METHODS.len()] = {
+        let mut all = [Method::Auto; METHODS.len()];
+        let mut i = 0;
+        while i < all.len() {
+            all[i] = METHODS[i].method;
+            i += 1;
+        }
+        all
+    };
+
+    /// Every method name, for messages and enums.
+    pub const NAMES: [&'static str; METHODS.len()] = {
+        let mut names = [""; METHODS.len()];
+        let mut i = 0;
+        while i < names.len() {
+            names[i] = METHODS[i].name;
+            i += 1;
+        }
+        names
+    };
+
+    /// Its row of [`METHODS`].
+    pub const fn spec(self) -> &'static MethodSpec {
+        &METHODS[self as usize]
+    }
+
+    /// The name on every interface (kebab-case, as serde writes it).
+    pub const fn name(self) -> &'static str {
+        self.spec().name
+    }
+
+    /// Whether `model` has what the method needs.
+    pub fn is_supported_by(self, model: &PoseModel) -> bool {
+        self.spec().needs.met_by(model)
+    }
+
+    /// The method's place in [`Method::ALL`], for tables indexed by method.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The method `auto` stands for, given the model, the subset the input is in and how many
+    /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
+    /// accurate on 68 and 51 points, the rigid fit on five (anchor means, which the shape fit
+    /// does not take).
+    pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
+        match self {
+            Method::Auto
+                if Method::FitShape.is_supported_by(model)
+                    && subset.map != SubsetMap::Anchors
+                    && present >= MIN_SHAPE_FIT_POINTS =>
+            {
+                Method::FitShape
+            }
+            Method::Auto => Method::Fit,
+            m => m,
+        }
+    }
+
+    /// The method `auto` stands for on a MediaPipe mesh scheme: the rigid fit of the mesh. On
+    /// the mesh at known poses it is exact where the shape fit through the correspondence is
+    /// 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md), and it is what
+    /// MediaPipe's own pose does (a fit of this mesh).
+    pub fn resolve_on_mesh(self) -> Method {
+        match self {
+            Method::Auto => Method::Fit,
+            m => m,
+        }
+    }
+}
+
+impl MethodSpec {
+    /// Fails when a camera is given to a method that cannot use it, naming those that can.
+    pub fn check_camera(&self, camera: Option<&Intrinsics>) -> Result<()> {
+        if camera.is_none() || self.perspective {
+            return Ok(());
+        }
+        let can: Vec<&str> = METHODS
+            .iter()
+            .filter(|m| m.perspective)
+            .map(|m| m.name)
+            .collect();
+        Err(Error::param(
+            "camera",
+            format!(
+                "method {} is weak-perspective only; use {} with camera intrinsics",
+                self.name,
+                or_list(&can)
+            ),
+        ))
+    }
+
+    /// Runs the method (resolved: not `auto`) on `input`.
+    pub fn run<'a>(&self, input: &SubsetInput<'a>) -> Result<Ran<'a>> {
+        let run = self.run.ok_or_else(|| {
+            Error::param("method", "auto must be resolved before it runs (internal)")
+        })?;
+        run(input)
+    }
+}
+
+/// `a, b or c`.
+fn or_list(names: &[&str]) -> String {
+    match names {
+        [] => String::new(),
+        [one] => (*one).to_string(),
+        [init @ .., last] => format!("{} or {last}", init.join(", ")),
+    }
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Method::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                Error::param(
+                    "method",
+                    format!("unknown method {s:?} (known: {})", Method::NAMES.join(", ")),
+                )
+            })
+    }
+}
+
+fn run_fit<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
+    let subset = i.subset;
+    // The visibility map is over the model's own points; subsets without contour points have
+    // nothing to drop.
+    let visibility = (subset.map == SubsetMap::Own).then_some(&i.model.visibility);
+    let f = fit_rigid(
+        &subset.mean,
+        i.landmarks,
+        &subset.scheme.contour,
+        visibility,
+        i.fit_options,
+    )?;
+    Ok(Ran {
+        rotation: f.rotation,
+        fitted: Some((Cow::Borrowed(&subset.mean[..]), f)),
+    })
+}
+
+fn run_fit_shape<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
+    let (model, subset) = (i.model, i.subset);
+    let morph = model.morph.as_ref().ok_or_else(|| {
+        Error::param(
+            "method",
+            "fit-shape needs a model with a shape basis; this model has none",
+        )
+    })?;
+    let full = model.expand(subset, i.landmarks).ok_or_else(|| {
+        Error::param(
+            "method",
+            format!("fit-shape does not take scheme {}", i.scheme),
+        )
+    })?;
+    let f = fit_morphable(
+        morph,
+        &full,
+        &model.scheme.contour,
+        Some(&model.visibility),
+        MorphOptions {
+            rigid: i.fit_options,
+            ..MorphOptions::default()
+        },
+    )?;
+    let rotation = f.camera.rotation;
+    // The model's own scheme takes the fit's shape and weights as they are.
+    let (shape, weights) = match &subset.map {
+        SubsetMap::Own => (f.shape, f.camera.weights),
+        map => {
+            let shape = map.map_points(&model.scheme, &f.shape);
+            let weights = match map {
+                SubsetMap::Indices(idx) => idx.iter().map(|&k| f.camera.weights[k]).collect(),
+                _ => vec![1.0; subset.scheme.len()],
+            };
+            (shape, weights)
+        }
+    };
+    Ok(Ran {
+        rotation,
+        fitted: Some((
+            Cow::Owned(shape),
+            RigidFit {
+                weights,
+                ..f.camera
+            },
+        )),
+    })
+}
+
+fn run_regression<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
+    let (model, map) = (i.model, &i.subset.map);
+    let hidden = |yaw: f64, pitch: f64, out: &mut [bool]| {
+        map.hidden_into(
+            &model.scheme,
+            model.visibility.lookup_yaw_pitch(yaw, pitch),
+            out,
+        )
+    };
+    Ok(Ran {
+        rotation: i.subset.regression.estimate(i.landmarks, &hidden)?.rotation,
+        fitted: None,
+    })
+}
+
+fn run_geometry<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
+    let five = match &i.subset.map {
+        SubsetMap::Anchors => i.landmarks.clone(),
+        SubsetMap::Own | SubsetMap::Indices(_) => i.landmarks.to_five(&i.subset.scheme)?,
+    };
+    Ok(Ran {
+        rotation: estimate_geometric(&five, &i.model.geometry)?,
+        fitted: None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_is_in_the_enum_order() {
+        for (i, spec) in METHODS.iter().enumerate() {
+            assert_eq!(spec.method as usize, i, "{}", spec.name);
+            assert_eq!(spec.method.name(), spec.name);
+            assert_eq!(spec.name.parse::<Method>().unwrap(), spec.method);
+            // serde's kebab-case name is the table's.
+            assert_eq!(
+                serde_json::to_string(&spec.method).unwrap(),
+                format!("{:?}", spec.name)
+            );
+            // Only auto resolves instead of running.
+            assert_eq!(spec.run.is_none(), spec.method == Method::Auto);
+        }
+    }
+
+    #[test]
+    fn a_camera_is_refused_by_name_with_the_methods_that_take_one() {
+        let k = Intrinsics {
+            fx: 500.0,
+            fy: 500.0,
+            cx: 320.0,
+            cy: 240.0,
+        };
+        let e = Method::Geometry
+            .spec()
+            .check_camera(Some(&k))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("method geometry is weak-perspective only; use auto, fit or fit-shape"),
+            "{e}"
+        );
+        assert!(Method::Fit.spec().check_camera(Some(&k)).is_ok());
+        assert!(Method::Regression.spec().check_camera(None).is_ok());
+    }
+}
