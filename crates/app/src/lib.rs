@@ -11,6 +11,7 @@
 pub mod auth;
 pub mod blocking;
 pub mod error;
+pub mod estimate;
 pub mod jobs;
 pub mod lifecycle;
 pub mod metrics;

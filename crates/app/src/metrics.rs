@@ -278,6 +278,14 @@ pub struct FaceTally {
 }
 
 impl FaceTally {
+    /// Counts one face's outcome: its method, or its error's kind.
+    pub fn count(&mut self, outcome: &Result<crate::pose::FacePose, crate::error::ServiceError>) {
+        match outcome {
+            Ok(p) => self.ok(p.record.method),
+            Err(e) => self.err(e.kind()),
+        }
+    }
+
     pub fn ok(&mut self, m: Method) {
         self.by_method[m.index()] += 1;
     }

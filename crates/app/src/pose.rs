@@ -1,8 +1,6 @@
-//! One face through the core, the same for both transports: resolve scheme and method against
-//! the model, build the shape, estimate, check the output is finite. Batches run here too, off
-//! the async reactor when they are big, with the request's deadline checked as they go.
-
-use std::time::Instant;
+//! One face through the core, the same for every transport and use case
+//! ([`crate::estimate`]): resolve scheme and method against the model, build the shape,
+//! estimate, check the output is finite.
 
 use crate::error::ServiceError;
 use crate::registry::ServedModel;
@@ -102,28 +100,3 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         scheme: scheme.to_string(),
     })
 }
-
-/// Batches with more faces than this run on the blocking pool, not on the async workers.
-pub const INLINE_FACES: usize = 8;
-
-/// Maps `f` over a batch's faces, each independently. Stops early once `deadline` has passed
-/// (checked every few faces), so that a timed-out batch does not keep a core busy.
-pub fn for_each_face<T, R>(
-    faces: impl IntoIterator<Item = T>,
-    deadline: Option<Instant>,
-    mut f: impl FnMut(T) -> R,
-) -> Result<Vec<R>, DeadlinePassed> {
-    let faces = faces.into_iter();
-    let mut out = Vec::with_capacity(faces.size_hint().0);
-    for (i, face) in faces.enumerate() {
-        if i % 16 == 15 && deadline.is_some_and(|d| Instant::now() > d) {
-            return Err(DeadlinePassed);
-        }
-        out.push(f(face));
-    }
-    Ok(out)
-}
-
-/// The deadline passed during a batch.
-#[derive(Debug, Clone, Copy)]
-pub struct DeadlinePassed;

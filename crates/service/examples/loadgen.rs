@@ -295,7 +295,8 @@ impl Decoder for Outcomes {
 fn ceiling(a: &Args) {
     use facepose_app::Limits;
     let body = prost::bytes::Bytes::from(std::fs::read(&a.dir).expect("the batch body"));
-    let set = facepose_app::registry::load_models(None).expect("the default models");
+    let set =
+        std::sync::Arc::new(facepose_app::registry::load_models(None).expect("the default models"));
     let limits = Limits {
         max_batch: usize::MAX,
         max_body: usize::MAX,
@@ -306,9 +307,19 @@ fn ceiling(a: &Args) {
         upload_timeout: Duration::from_secs(1),
     };
     let metrics = facepose_app::metrics::Metrics::new();
+    // What the batch use case does around the transport's work, less the choice of thread.
     let answer = |b: &Bytes| {
-        facepose_service::http::pose::answer_batch(b.clone(), &set, limits, None, &metrics)
-            .unwrap_or_else(|e| panic!("the body is refused: {e}"))
+        let mut run = facepose_app::estimate::BatchRun::new(
+            set.clone(),
+            limits,
+            None,
+            metrics.clone(),
+            facepose_app::metrics::Transport::Http,
+        );
+        let out = facepose_service::http::pose::answer_batch(b.clone(), &mut run)
+            .unwrap_or_else(|e| panic!("the body is refused: {e}"));
+        run.finish();
+        out
     };
     let first: serde_json::Value = serde_json::from_slice(&answer(&body)).expect("JSON");
     let faces = first["succeeded"].as_u64().unwrap_or(0) + first["failed"].as_u64().unwrap_or(0);

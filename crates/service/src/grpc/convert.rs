@@ -2,6 +2,7 @@
 //! form, poses, per-face errors, models, versions, jobs.
 
 use facepose_app::error::ServiceError;
+use facepose_app::estimate::{FaceInput, FaceOutcome};
 use facepose_app::jobs::Job;
 use facepose_app::pose::{FacePose, FaceSpec};
 use facepose_app::tracking::Smoothed;
@@ -72,6 +73,37 @@ pub fn landmarks_into(
         *slot = None;
     }
     Ok(())
+}
+
+impl FaceInput for proto::Face {
+    /// Its landmarks, in either form, converted into `points`.
+    fn spec<'a>(
+        &'a self,
+        points: &'a mut Vec<Option<[f64; 2]>>,
+    ) -> Result<FaceSpec<'a>, ServiceError> {
+        landmarks_into(self, points)?;
+        Ok(face_spec(self, points))
+    }
+
+    fn track_id(&self) -> &str {
+        &self.id
+    }
+}
+
+/// A face's result message from its outcome and what smoothing did to it.
+pub fn face_result(
+    face: proto::Face,
+    outcome: FaceOutcome,
+    smoothed: Smoothed,
+) -> proto::FaceResult {
+    let result = match outcome {
+        Ok(p) => proto::face_result::Result::Pose(pose_message(&p, smoothed)),
+        Err(e) => proto::face_result::Result::Error(face_error(&e)),
+    };
+    proto::FaceResult {
+        id: face.id,
+        result: Some(result),
+    }
 }
 
 /// The transport-neutral face of a proto face whose landmarks are `points`.

@@ -21,14 +21,14 @@ use std::time::Instant;
 
 use facepose_app::App;
 use facepose_app::error::ServiceError;
+use facepose_app::estimate::{BatchSize, check_batch_size};
 use facepose_app::jobs::Cancel;
-use facepose_app::metrics::{FaceTally, Transport};
-use facepose_app::pose::{INLINE_FACES, estimate_face, for_each_face};
+use facepose_app::metrics::Transport;
 use facepose_app::tracking::Smoothed;
 use tonic::{Request, Response, Status, Streaming};
 
 pub use convert::landmark_messages;
-use convert::{face_error, face_spec, job_message, landmarks_into, model_info, pose_message};
+use convert::{face_result, job_message, model_info, pose_message};
 use error::{code_name, inbound_error};
 use retrain::ChunkCollector;
 use stream::FrameStream;
@@ -59,31 +59,6 @@ fn authorize<T>(app: &App, request: &Request<T>) -> Result<(), ServiceError> {
 }
 
 /// One face with its own outcome, as in a batch.
-fn face_result(
-    model: &facepose_app::registry::ServedModel,
-    face: &proto::Face,
-    points: &mut Vec<Option<[f64; 2]>>,
-    tally: &mut FaceTally,
-) -> proto::FaceResult {
-    let estimate =
-        landmarks_into(face, points).and_then(|()| estimate_face(model, &face_spec(face, points)));
-    let result = match estimate {
-        Ok(p) => {
-            tally.ok(p.record.method);
-            proto::face_result::Result::Pose(pose_message(&p, Smoothed::default()))
-        }
-        Err(e) => {
-            tally.err(e.kind());
-            proto::face_result::Result::Error(face_error(&e))
-        }
-    };
-    proto::FaceResult {
-        id: face.id.clone(),
-        result: Some(result),
-    }
-}
-
-/// Runs a unary call under the concurrency and time limits and records its metrics.
 async fn unary<T, F>(app: &App, rpc: &'static str, f: F) -> Result<Response<T>, Status>
 where
     F: Future<Output = Result<T, ServiceError>>,
@@ -122,23 +97,12 @@ impl PoseService for PoseApi {
             let face = req
                 .face
                 .ok_or_else(|| ServiceError::invalid("missing face: set EstimateRequest.face"))?;
-            let models = app.models();
-            let model = models.get(Some(&req.model))?;
-            let mut points = Vec::with_capacity(face.landmarks.len().max(face.xy.len() / 2));
-            let mut tally = FaceTally::default();
-            let result = landmarks_into(&face, &mut points)
-                .and_then(|()| estimate_face(model, &face_spec(&face, &points)));
-            match &result {
-                Ok(p) => tally.ok(p.record.method),
-                Err(e) => tally.err(e.kind()),
-            }
-            app.metrics.faces(&tally, Transport::Grpc);
-            let p = result?;
+            let answer = app.estimate(Transport::Grpc, Some(&req.model), &face)?;
             Ok(proto::EstimateResponse {
-                pose: Some(pose_message(&p, Smoothed::default())),
+                pose: Some(pose_message(&answer.pose, Smoothed::default())),
                 id: face.id,
-                model: model.name.clone(),
-                model_version: model.version.clone(),
+                model: answer.model.name.clone(),
+                model_version: answer.model.version.clone(),
             })
         })
         .await
@@ -151,37 +115,23 @@ impl PoseService for PoseApi {
         let app = self.app.clone();
         unary(&self.app, "EstimateBatch", async move {
             let req = request.into_inner();
-            let limits = app.limits;
-            if req.faces.len() > limits.max_batch {
-                return Err(ServiceError::BatchTooLarge {
-                    faces: req.faces.len(),
-                    limit: limits.max_batch,
-                });
-            }
-            let models = app.models();
-            let model = models.get(Some(&req.model))?.clone();
-            let deadline = Instant::now() + limits.request_timeout;
-            let inline = req.faces.len() <= INLINE_FACES;
-            let metrics = app.metrics.clone();
-            facepose_app::blocking::run_maybe_blocking(inline, move || {
-                let mut points = Vec::new();
-                let mut tally = FaceTally::default();
-                let results = for_each_face(&req.faces, Some(deadline), |face| {
-                    face_result(&model, face, &mut points, &mut tally)
-                })
-                .map_err(|_| ServiceError::Timeout {
-                    limit: limits.request_timeout,
+            check_batch_size(req.faces.len(), app.limits.max_batch)?;
+            let deadline = Instant::now() + app.limits.request_timeout;
+            let size = BatchSize::Faces(req.faces.len());
+            app.estimate_batch(Transport::Grpc, size, deadline, move |run| {
+                let model = run.model(Some(&req.model))?;
+                let results = run.estimate_each(&model, req.faces, |face, outcome| {
+                    face_result(face, outcome, Smoothed::default())
                 })?;
-                metrics.faces(&tally, Transport::Grpc);
                 Ok(proto::EstimateBatchResponse {
                     results,
                     model: model.name.clone(),
                     model_version: model.version.clone(),
-                    succeeded: tally.succeeded() as u32,
-                    failed: tally.failed() as u32,
+                    succeeded: run.tally().succeeded() as u32,
+                    failed: run.tally().failed() as u32,
                 })
             })
-            .await?
+            .await
         })
         .await
     }

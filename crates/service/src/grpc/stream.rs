@@ -1,24 +1,23 @@
 //! `EstimateStream`: frames in, one result per frame out, per-face errors that do not end the
-//! stream, the optional smoothing of each face track (the application's
-//! [`Session`]). A stream ends with UNAVAILABLE when the server drains, and with its error
-//! for a frame over `--max-batch` or an unusable smoothing configuration.
+//! stream, the optional smoothing of each face track (the application's stream session,
+//! [`StreamSession`]). A stream ends with UNAVAILABLE when the server drains, and with its
+//! error for a frame over `--max-batch` or an unusable smoothing configuration.
 
 use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Instant;
 
+use facepose_app::App;
 use facepose_app::error::ServiceError;
-use facepose_app::metrics::{FaceTally, Transport};
-use facepose_app::pose::estimate_face;
-use facepose_app::registry::ModelSet;
-use facepose_app::tracking::{Filter, Session, track_key};
-use facepose_app::{App, StreamPermit};
+use facepose_app::estimate::{Frame, StreamSession};
+use facepose_app::metrics::Transport;
+use facepose_app::tracking::Filter;
 use facepose_core::geometry::rotation_kalman::KalmanParams;
 use facepose_core::geometry::smoothing::OneEuroParams;
 use futures_util::Stream;
 use tonic::{Status, Streaming};
 
-use super::convert::{face_error, face_spec, landmarks_into, pose_message};
+use super::convert::face_result;
 use super::error::{self, code_name, inbound_error};
 use crate::proto;
 
@@ -68,61 +67,28 @@ pub fn smoothing_params(s: &proto::Smoothing) -> Result<Option<Filter>, ServiceE
     Ok(Some(filter))
 }
 
-/// Estimates every face of `frame` with the model it names in `models`, smoothing each track
-/// when the session says so. Fails (ending the stream) only for a frame over `max_faces` or an
-/// unusable smoothing configuration.
+/// Answers one frame in `session`. Fails (ending the stream) only for a frame over
+/// `--max-batch` faces or an unusable smoothing configuration.
 pub fn answer_frame(
-    session: &mut Session,
-    models: &ModelSet,
+    session: &mut StreamSession,
     frame: proto::Frame,
-    max_faces: usize,
-    tally: &mut FaceTally,
 ) -> Result<proto::FrameResult, ServiceError> {
-    if frame.faces.len() > max_faces {
-        return Err(ServiceError::BatchTooLarge {
-            faces: frame.faces.len(),
-            limit: max_faces,
-        });
-    }
-    if let Some(s) = &frame.smoothing {
-        session.configure(smoothing_params(s)?)?;
-    }
-    session.begin_frame(frame.timestamp_us);
-    let model = models.get(Some(&frame.model));
-    let (model_name, model_version) = match &model {
-        Ok(m) => (m.name.clone(), m.version.clone()),
-        Err(_) => (frame.model.clone(), String::new()),
-    };
-    let mut faces = Vec::with_capacity(frame.faces.len());
-    let mut points = Vec::new();
-    for (i, face) in frame.faces.into_iter().enumerate() {
-        let result = model.as_ref().map_err(|e| e.clone()).and_then(|m| {
-            landmarks_into(&face, &mut points)?;
-            estimate_face(m, &face_spec(&face, &points))
-        });
-        let result = match result {
-            Ok(mut p) => {
-                tally.ok(p.record.method);
-                let smoothed = session.smooth(track_key(&face.id, i), &mut p);
-                proto::face_result::Result::Pose(pose_message(&p, smoothed))
-            }
-            Err(e) => {
-                tally.err(e.kind());
-                proto::face_result::Result::Error(face_error(&e))
-            }
-        };
-        faces.push(proto::FaceResult {
-            id: face.id,
-            result: Some(result),
-        });
-    }
-    session.end_frame();
+    let smoothing = frame.smoothing.as_ref().map(smoothing_params).transpose()?;
+    let answer = session.frame(
+        Frame {
+            model: frame.model,
+            timestamp_us: frame.timestamp_us,
+            smoothing,
+            faces: frame.faces,
+        },
+        face_result,
+    )?;
     Ok(proto::FrameResult {
         frame_id: frame.frame_id,
         timestamp_us: frame.timestamp_us,
-        faces,
-        model: model_name,
-        model_version,
+        faces: answer.faces,
+        model: answer.model,
+        model_version: answer.model_version,
     })
 }
 
@@ -130,22 +96,20 @@ pub fn answer_frame(
 struct StreamState {
     app: Arc<App>,
     inbound: Streaming<proto::Frame>,
-    session: Session,
+    session: StreamSession,
     drained: Pin<Box<dyn Future<Output = ()> + Send>>,
     guard: StreamGuard,
     done: bool,
 }
 
-/// Releases the stream's slot and records it when the stream ends, however it ends.
+/// Records the call with its code when the stream ends, however it ends.
 struct StreamGuard {
     app: Arc<App>,
-    _permit: StreamPermit,
     code: tonic::Code,
 }
 
 impl Drop for StreamGuard {
     fn drop(&mut self) {
-        self.app.metrics.stream_closed();
         self.app
             .metrics
             .grpc_request("EstimateStream", code_name(self.code), None);
@@ -154,8 +118,8 @@ impl Drop for StreamGuard {
 
 /// Opens a stream over `inbound`, or refuses it (all stream slots taken, or draining).
 pub fn open(app: &Arc<App>, inbound: Streaming<proto::Frame>) -> Result<FrameStream, Status> {
-    let permit = match app.stream_permit() {
-        Ok(p) => p,
+    let session = match app.open_stream(Transport::Grpc) {
+        Ok(s) => s,
         Err(e) => {
             if matches!(e, ServiceError::StreamsBusy { .. }) {
                 app.metrics.grpc_request(
@@ -167,15 +131,13 @@ pub fn open(app: &Arc<App>, inbound: Streaming<proto::Frame>) -> Result<FrameStr
             return Err(error::status(&e));
         }
     };
-    app.metrics.stream_opened();
     let st = StreamState {
         app: app.clone(),
         inbound,
-        session: Session::default(),
+        session,
         drained: Box::pin(app.lifecycle.drained()),
         guard: StreamGuard {
             app: app.clone(),
-            _permit: permit,
             code: tonic::Code::Ok,
         },
         done: false,
@@ -190,17 +152,8 @@ pub fn open(app: &Arc<App>, inbound: Streaming<proto::Frame>) -> Result<FrameStr
             msg = st.inbound.message() => match msg {
                 Ok(Some(frame)) => {
                     let started = Instant::now();
-                    let models = st.app.models();
-                    let mut tally = FaceTally::default();
-                    let result = answer_frame(
-                        &mut st.session,
-                        &models,
-                        frame,
-                        st.app.limits.max_batch,
-                        &mut tally,
-                    )
-                    .map_err(|e| error::status(&e));
-                    st.app.metrics.faces(&tally, Transport::Grpc);
+                    let result = answer_frame(&mut st.session, frame)
+                        .map_err(|e| error::status(&e));
                     st.app.metrics.grpc_latency("EstimateStream", started.elapsed());
                     result
                 }

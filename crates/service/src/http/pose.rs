@@ -3,18 +3,16 @@
 //! ([`super::request_json`]), else by serde with its precise errors.
 
 use std::sync::Arc;
-use std::time::Instant;
 
 use axum::Extension;
 use axum::body::Bytes;
 use axum::extract::{Request, State};
 use axum::response::Response;
-use facepose_app::blocking::run_maybe_blocking;
+use facepose_app::App;
 use facepose_app::error::ServiceError;
-use facepose_app::metrics::{FaceTally, Metrics, Transport};
-use facepose_app::pose::{FaceSpec, estimate_face, for_each_face};
-use facepose_app::registry::ModelSet;
-use facepose_app::{App, Limits};
+use facepose_app::estimate::{BatchRun, BatchSize, FaceInput, INLINE_BYTES};
+use facepose_app::metrics::Transport;
+use facepose_app::pose::FaceSpec;
 use facepose_core::estimate::Intrinsics;
 use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::shape::pixels::check_coordinates;
@@ -28,13 +26,57 @@ use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
 use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
 use super::wire::{
-    BatchError, BatchPose, BatchRequest, BatchResponse, BatchResult, PoseRequest, PoseResponse,
-    image_size,
+    BatchError, BatchFace, BatchPose, BatchRequest, BatchResponse, BatchResult, Camera,
+    PoseRequest, PoseResponse, image_size,
 };
 
-/// Bodies up to this size (about six 68-point faces) are parsed and estimated inline; larger
-/// batches go to the blocking pool.
-const INLINE_BODY: usize = 16 * 1024;
+impl FaceInput for PoseRequest {
+    fn spec<'a>(
+        &'a self,
+        _points: &'a mut Vec<Option<[f64; 2]>>,
+    ) -> Result<FaceSpec<'a>, ServiceError> {
+        Ok(FaceSpec {
+            landmarks: &self.landmarks.0,
+            scheme: self.scheme.as_deref(),
+            method: self.method.as_deref(),
+            camera: self.camera.map(Into::into),
+            style: self.landmark_style.as_deref(),
+            image_size: image_size(self.image_size),
+        })
+    }
+}
+
+/// What a batch's faces take from the batch when they do not say.
+struct BatchDefaults {
+    scheme: Option<String>,
+    method: Option<String>,
+    camera: Option<Camera>,
+    landmark_style: Option<String>,
+    image_size: Option<[f64; 2]>,
+}
+
+/// A face of a batch with the batch's defaults.
+struct BatchItem<'r> {
+    face: BatchFace,
+    defaults: &'r BatchDefaults,
+}
+
+impl FaceInput for BatchItem<'_> {
+    fn spec<'a>(
+        &'a self,
+        _points: &'a mut Vec<Option<[f64; 2]>>,
+    ) -> Result<FaceSpec<'a>, ServiceError> {
+        let (f, d) = (&self.face, self.defaults);
+        Ok(FaceSpec {
+            landmarks: &f.landmarks.0,
+            scheme: f.scheme.as_deref().or(d.scheme.as_deref()),
+            method: f.method.as_deref().or(d.method.as_deref()),
+            camera: f.camera.or(d.camera).map(Into::into),
+            style: f.landmark_style.as_deref().or(d.landmark_style.as_deref()),
+            image_size: image_size(f.image_size.or(d.image_size)),
+        })
+    }
+}
 
 /// Parses a `POST /v1/pose` body: in one pass when it has the usual shape
 /// ([`read_pose_request`]), else with serde and its precise errors ([`parse_json`]).
@@ -49,7 +91,7 @@ pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchReques
     if let Some(req) = read_batch_request(bytes, max_batch) {
         return Ok(req);
     }
-    if bytes.len() >= INLINE_BODY {
+    if bytes.len() >= INLINE_BYTES {
         let faces = count_batch_faces(bytes);
         if faces > max_batch {
             return Err(ServiceError::BatchTooLarge {
@@ -147,31 +189,12 @@ pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response,
     let mut guard = BodyGuard::new(BodyKind::Pose);
     let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
     let req = parse_pose_request(&bytes)?;
-    let models = app.models();
-    let model = models.get(req.model.as_deref())?;
-    let result = estimate_face(
-        model,
-        &FaceSpec {
-            landmarks: &req.landmarks.0,
-            scheme: req.scheme.as_deref(),
-            method: req.method.as_deref(),
-            camera: req.camera.map(Into::into),
-            style: req.landmark_style.as_deref(),
-            image_size: image_size(req.image_size),
-        },
-    );
-    let mut tally = FaceTally::default();
-    match &result {
-        Ok(p) => tally.ok(p.record.method),
-        Err(e) => tally.err(e.kind()),
-    }
-    app.metrics.faces(&tally, Transport::Http);
-    let p = result?;
+    let answer = app.estimate(Transport::Http, req.model.as_deref(), &req)?;
     Ok(json_bytes(to_json(&PoseResponse {
-        pose: p.record,
-        scheme: p.scheme,
-        model: model.name.clone(),
-        model_version: model.version.clone(),
+        pose: answer.pose.record,
+        scheme: answer.pose.scheme,
+        model: answer.model.name.clone(),
+        model_version: answer.model.version.clone(),
         id: req.id,
     })?))
 }
@@ -202,73 +225,56 @@ pub async fn pose_batch(
         max_faces: app.limits.max_batch,
     });
     let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
-    let models = app.models();
-    let limits = app.limits;
-    let inline = bytes.len() <= INLINE_BODY;
-    let metrics = app.metrics.clone();
-    let body = run_maybe_blocking(inline, move || {
-        answer_batch(bytes, &models, limits, Some(deadline.0), &metrics)
-    })
-    .await??;
+    let size = BatchSize::Bytes(bytes.len());
+    let body = app
+        .estimate_batch(Transport::Http, size, deadline.0, move |run| {
+            answer_batch(bytes, run)
+        })
+        .await?;
     Ok(json_bytes(body))
 }
 
-/// The answer to a `POST /v1/pose:batch` body: parse, estimate each face against `models`
-/// (stopping at `deadline`), serialize. Pure but for the metrics; the handler runs it off the
-/// async workers, and `loadgen ceiling` (crates/service/examples) runs it with no network.
-pub fn answer_batch(
-    bytes: Bytes,
-    models: &ModelSet,
-    limits: Limits,
-    deadline: Option<Instant>,
-    metrics: &Metrics,
-) -> Result<Vec<u8>, HttpError> {
-    let req = parse_batch_request(&bytes, limits.max_batch)?;
+/// The answer to a `POST /v1/pose:batch` body: parse, estimate each face in `run`, serialize.
+/// The handler runs it through the batch use case ([`App::estimate_batch`]); `loadgen
+/// ceiling` (crates/service/examples) runs it with no network.
+pub fn answer_batch(bytes: Bytes, run: &mut BatchRun) -> Result<Vec<u8>, HttpError> {
+    let req = parse_batch_request(&bytes, run.max_faces())?;
     drop(bytes);
-    if req.faces.len() > limits.max_batch {
-        return Err(ServiceError::BatchTooLarge {
-            faces: req.faces.len(),
-            limit: limits.max_batch,
-        }
-        .into());
-    }
+    run.check_size(req.faces.len())?;
     check_conformance(&req)?;
-    let model = models.get(req.model.as_deref())?;
-    let mut tally = FaceTally::default();
-    let results = for_each_face(req.faces, deadline, |face| {
-        let spec = FaceSpec {
-            landmarks: &face.landmarks.0,
-            scheme: face.scheme.as_deref().or(req.scheme.as_deref()),
-            method: face.method.as_deref().or(req.method.as_deref()),
-            camera: face.camera.or(req.camera).map(Into::into),
-            style: face
-                .landmark_style
-                .as_deref()
-                .or(req.landmark_style.as_deref()),
-            image_size: image_size(face.image_size.or(req.image_size)),
-        };
-        match estimate_face(model, &spec) {
-            Ok(p) => {
-                tally.ok(p.record.method);
-                BatchResult::Pose(BatchPose {
-                    pose: p.record,
-                    scheme: p.scheme,
-                    id: face.id,
-                })
-            }
-            Err(error) => {
-                tally.err(error.kind());
-                BatchResult::Error(BatchError {
-                    id: face.id,
-                    error: HttpError::from(error).object(),
-                })
-            }
-        }
-    })
-    .map_err(|_| ServiceError::Timeout {
-        limit: limits.request_timeout,
+    let model = run.model(req.model.as_deref())?;
+    let BatchRequest {
+        faces,
+        scheme,
+        method,
+        camera,
+        landmark_style,
+        image_size,
+        model: _,
+    } = req;
+    let defaults = BatchDefaults {
+        scheme,
+        method,
+        camera,
+        landmark_style,
+        image_size,
+    };
+    let items = faces.into_iter().map(|face| BatchItem {
+        face,
+        defaults: &defaults,
+    });
+    let results = run.estimate_each(&model, items, |item, outcome| match outcome {
+        Ok(p) => BatchResult::Pose(BatchPose {
+            pose: p.record,
+            scheme: p.scheme,
+            id: item.face.id,
+        }),
+        Err(error) => BatchResult::Error(BatchError {
+            id: item.face.id,
+            error: HttpError::from(error).object(),
+        }),
     })?;
-    metrics.faces(&tally, Transport::Http);
+    let tally = run.tally();
     // Room for what the answer will hold: a pose or a shorter error a face.
     let capacity = ONE_POSE_JSON
         .saturating_mul(tally.succeeded() as usize)
