@@ -16,6 +16,8 @@ use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};
 use super::euler::{Axes, EulerSpec};
 use super::request::ConventionError;
 use crate::estimate::Intrinsics;
+use crate::geometry::moments::Moments;
+use crate::shape::Shape2;
 
 /// The image's size in pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -102,6 +104,26 @@ impl Placement {
         Ok(())
     }
 
+    /// The weak-perspective placement of `shape` (model frame, mm) turned by `r` that best fits
+    /// the present `landmarks` (pixels): the least-squares scale and translation at that
+    /// rotation. What a caller without the fit's own scale and translation (the paper's
+    /// methods keep none) can pass; `None` without a positive scale.
+    pub fn fit_weak(
+        shape: &[Vector3<f64>],
+        landmarks: &Shape2,
+        r: &Rotation3<f64>,
+    ) -> Option<Placement> {
+        let m = Moments::of_landmarks(shape, landmarks, None);
+        let (scale, _) = m.best_scale(r)?;
+        if !(scale.is_finite() && scale > 0.0) {
+            return None;
+        }
+        Some(Placement::Weak {
+            scale,
+            translation: m.cy - scale * (r * m.cx).xy(),
+        })
+    }
+
     /// The view of a face turned by `r` placed here.
     pub fn view(&self, r: &Rotation3<f64>) -> View {
         match *self {
@@ -153,6 +175,21 @@ impl Placement {
             translation: t,
         }
     }
+}
+
+/// The rotation nearest to `m` (polar factor by SVD, determinant +1). Unlike nalgebra's
+/// `Rotation3::from_matrix`, whose iteration starts at the identity, it is right for half
+/// turns (a camera mounted upside down).
+pub fn nearest_rotation(m: &Matrix3<f64>) -> Rotation3<f64> {
+    let svd = m.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Rotation3::identity();
+    };
+    let mut d = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    Rotation3::from_matrix_unchecked(u * d * v_t)
 }
 
 /// Fails unless the intrinsics are finite and the focal lengths positive, saying which value.
@@ -223,7 +260,7 @@ impl CameraOrientation {
             )));
         }
         // Re-orthonormalize the tiny residue away.
-        let r = Rotation3::from_matrix(&axes.unexpress(&m));
+        let r = nearest_rotation(&axes.unexpress(&m));
         Ok(CameraOrientation(r))
     }
 

@@ -254,6 +254,10 @@ fn a_camera_orientation_must_be_a_rotation() {
     assert!(CameraOrientation::from_rows(nan, Axes::FACEPOSE).is_err());
     assert!(CameraOrientation::from_quaternion(1.0, 1.0, 0.0, 0.0, Axes::FACEPOSE).is_err());
     assert!(CameraOrientation::from_quaternion(1.0, 0.0, 0.0, 0.0, Axes::FACEPOSE).is_ok());
+    // A camera mounted upside down (a half turn about its optical axis) stays a half turn.
+    let flipped = [[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]];
+    let c = CameraOrientation::from_rows(flipped, Axes::FACEPOSE).unwrap();
+    assert_relative_eq!(c.rotation().angle(), std::f64::consts::PI, epsilon = 1e-12);
 }
 
 /// Worked example of docs/API.md: a webcam tilted down 20° sees a face that looks straight at
@@ -281,6 +285,7 @@ fn a_tilted_camera_gives_the_pose_in_the_world() {
         image_size: None,
         orientation: Some(c),
         mesh: None,
+        refit: None,
     };
     let out = answer(&reqs, &input).unwrap();
     let ConventionAnswer::Euler(e) = &out.answers[0] else {
@@ -361,6 +366,7 @@ fn opencv_and_mediapipe_say_what_they_lack() {
         image_size: None,
         orientation: None,
         mesh: None,
+        refit: None,
     };
     let opencv = [ConventionRequest::OpenCv(ObjectFrame::OpenCv)];
     let m = answer(&opencv, &input).unwrap_err().to_string();

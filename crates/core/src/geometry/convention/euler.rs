@@ -453,6 +453,8 @@ impl EulerSpec {
             }
             rad[1] = -rad[1];
         }
+        rad[0] = wrap_pi(rad[0]);
+        rad[2] = wrap_pi(rad[2]);
         rad.map(|a| self.units.of_rad(a) + 0.0)
     }
 

@@ -37,7 +37,7 @@ pub use euler::{Axes, EulerSpec, Kind, Matrices, Order, Units};
 pub use peers::{MEDIAPIPE_CAMERA, MediaPipeAnswer, MeshFrame, ObjectFrame, OpenCvAnswer};
 pub use request::{
     ConventionAnswer, ConventionAnswers, ConventionError, ConventionRequest, ConventionWarning,
-    EulerAnswer, PoseInput, QuaternionAnswer, answer,
+    EulerAnswer, PoseInput, QuaternionAnswer, Refit, answer,
 };
 
 /// Head pose angles in degrees, `Pose_Para` convention (see the module docs).
