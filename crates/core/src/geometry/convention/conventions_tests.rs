@@ -551,3 +551,99 @@ proptest! {
         prop_assert!(geodesic_deg(o.rotation(), o3.rotation()) < 1e-9);
     }
 }
+
+/// The worked example of docs/API.md "Answers in your convention": the face of the OpenCV
+/// example (Pose_Para yaw 30, pitch -10, roll 5; 10 mm right, 20 mm up, 600 mm in front) in
+/// every convention. Quaternion and Euler numbers are scipy's (`Rotation.from_euler("XYZ",
+/// [10, -30, -5], degrees=True)`, the same rotation in standard matrices).
+#[test]
+#[allow(clippy::approx_constant)] // the docs' printed radians (30° is 0.5236)
+fn worked_example_of_the_docs() {
+    let (_, model) = crate::model::default_model().unwrap();
+    let (mesh, _) = model.mesh_scheme("mediapipe468").unwrap();
+    let frame = super::peers::MeshFrame::of_served_mesh(&mesh.source().vertices).unwrap();
+    let k = Intrinsics {
+        fx: 800.0,
+        fy: 800.0,
+        cx: 320.0,
+        cy: 240.0,
+    };
+    let t = Vector3::new(10.0, 20.0, -600.0);
+    let r = rot(30.0, -10.0, 5.0);
+    let reqs =
+        ConventionRequest::parse_list("quaternion,euler:preset=openface,opencv,mediapipe").unwrap();
+    let input = PoseInput {
+        rotation: r,
+        placement: Some(Placement::Perspective {
+            translation: t,
+            camera: k,
+        }),
+        image_size: Some(ImageSize::new(640.0, 480.0).unwrap()),
+        orientation: None,
+        mesh: Some(&frame),
+        refit: None,
+    };
+    // The service refits the landmarks under MediaPipe's camera: the model's points seen by
+    // this camera, fitted again with MediaPipe's intrinsics.
+    let px: Vec<nalgebra::Vector2<f64>> = model
+        .mean
+        .iter()
+        .map(|x| k.project(&(r * x + t)).unwrap())
+        .collect();
+    let shape = crate::shape::Shape2::full(px).unwrap();
+    let refit = |kk: &Intrinsics| {
+        let opts = crate::pose::EstimateOptions {
+            method: crate::pose::Method::Fit,
+            camera: Some(*kk),
+            style: crate::pose::LandmarkStyle::Projected,
+        };
+        let e = crate::pose::estimate_with(&model, "ibug68", &shape, &opts).ok()?;
+        Some(super::camera::CameraPose {
+            rotation: e.rotation,
+            translation: e.translation?,
+        })
+    };
+    let input = PoseInput {
+        refit: Some(&refit),
+        ..input
+    };
+    let out = answer(&reqs, &input).unwrap();
+    assert!(out.warnings.is_empty());
+    let close = |got: &[f64], want: &[f64], tol: f64| {
+        assert!(
+            got.iter().zip(want).all(|(g, w)| (g - w).abs() < tol),
+            "{got:?} vs {want:?}: update docs/API.md"
+        );
+    };
+    for a in &out.answers {
+        match a {
+            ConventionAnswer::Quaternion(q) => close(
+                &[q.w, q.x, q.y, q.z],
+                &[0.9604, 0.0954, -0.2539, -0.0645],
+                1e-4,
+            ),
+            ConventionAnswer::Euler(e) => {
+                close(&e.angles, &[0.1745, 0.5236, 0.0873], 1e-4);
+                assert_eq!((e.order.as_str(), e.axes.as_str()), ("XYZ", "RDF"));
+            }
+            ConventionAnswer::OpenCv(o) => {
+                close(&o.rvec, &[0.1933, 0.5147, 0.1308], 1e-4);
+                close(&o.tvec, &[10.0, -20.0, 600.0], 1e-9);
+                assert!(!o.camera_assumed);
+            }
+            ConventionAnswer::MediaPipe(m) => {
+                // The same landmarks refitted in MediaPipe's 63° camera on the 640 x 480 image
+                // (f = 391.6 px).
+                close(&m.matrix[0], &[0.8550, 0.0768, -0.5128, 2.7756], 1e-4);
+                close(&m.matrix[1], &[-0.1932, 0.9650, -0.1776, 3.7585], 1e-4);
+                close(&m.matrix[2], &[0.4812, 0.2509, 0.8399, -32.8067], 1e-4);
+                close(&m.data[12..16], &[2.7756, 3.7585, -32.8067, 1.0], 1e-4);
+                close(
+                    &m.data[0..4],
+                    &[m.matrix[0][0], m.matrix[1][0], m.matrix[2][0], 0.0],
+                    1e-15,
+                );
+            }
+        }
+    }
+}
