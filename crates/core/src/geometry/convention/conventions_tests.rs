@@ -539,6 +539,34 @@ proptest! {
         }
     }
 
+    /// The MediaPipe matrix gives the pose back: `R = M₃ₓ₃ Qᵀ`, `T = 10 σ M₃ − R c`.
+    #[test]
+    fn mediapipe_matrix_round_trips(yaw in -89.0f64..89.0, pitch in -89.0f64..89.0, roll in -179.0f64..179.0,
+                                    tx in -200.0f64..200.0, ty in -200.0f64..200.0, depth in 200.0f64..3000.0,
+                                    scale in 0.8f64..1.2, turn in -0.2f64..0.2) {
+        use crate::geometry::procrustes::Similarity3;
+        let sim = Similarity3 {
+            scale,
+            rotation: Rotation3::new(Vector3::new(turn, -turn / 2.0, turn / 3.0)),
+            translation: Vector3::new(1.0, 12.0, -30.0),
+        };
+        let frame = super::peers::MeshFrame(sim);
+        let pose = super::camera::CameraPose { rotation: rot(yaw, pitch, roll), translation: Vector3::new(tx, ty, -depth) };
+        let a = super::peers::MediaPipeAnswer::new(&pose, &frame);
+        let m = nalgebra::Matrix4::from_fn(|i, j| a.matrix[i][j]);
+        prop_assert!((nalgebra::Matrix4::from_column_slice(&a.data) - m).abs().max() == 0.0);
+        let r3 = m.fixed_view::<3, 3>(0, 0).into_owned();
+        let r = r3 * sim.rotation.matrix().transpose();
+        let t = 10.0 * scale * m.fixed_view::<3, 1>(0, 3).into_owned() - r * sim.translation;
+        prop_assert!(matrix_err(&r, pose.rotation.matrix()) < 1e-12);
+        prop_assert!((t - pose.translation).norm() < 1e-9);
+        // Every canonical vertex lands on the same pixel as the model's point it became.
+        let v = Vector3::new(3.0, -4.0, 7.5); // cm
+        let p_mp = r3 * v + m.fixed_view::<3, 1>(0, 3).into_owned();
+        let p_fp = pose.rotation * sim.apply(&(10.0 * v)) + pose.translation;
+        prop_assert!((p_mp.xy() / -p_mp.z - p_fp.xy() / -p_fp.z).norm() < 1e-12);
+    }
+
     #[test]
     fn camera_orientation_round_trips_in_any_axes(a in -170.0f64..170.0, b in -80.0f64..80.0, c in -170.0f64..170.0) {
         let spec = EulerSpec { units: Units::Degrees, axes: Axes::OPENCV, ..EulerSpec::OPENFACE };

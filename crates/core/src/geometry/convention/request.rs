@@ -219,6 +219,14 @@ impl ConventionRequest {
     }
 }
 
+impl EulerSpec {
+    /// An Euler convention from `(parameter, value)` pairs, as `euler` takes them
+    /// ([`ConventionRequest::parse`]): for a camera orientation given as angles.
+    pub fn from_params(params: &[(&str, &str)]) -> Result<EulerSpec, ConventionError> {
+        parse_euler(params)
+    }
+}
+
 /// Fails when a name is requested twice.
 pub fn check_unique(requests: &[ConventionRequest]) -> Result<(), ConventionError> {
     for (k, r) in requests.iter().enumerate() {
@@ -473,9 +481,6 @@ pub fn answer(
         return Ok(out);
     }
     check_unique(requests)?;
-    if let Some(p) = &input.placement {
-        p.validate()?;
-    }
     let world = input
         .orientation
         .unwrap_or_else(CameraOrientation::identity);
@@ -497,6 +502,7 @@ pub fn answer(
                 let placement = input
                     .placement
                     .ok_or(ConventionError::NoPlacement("opencv"))?;
+                placement.validate()?;
                 let (k, assumed) = match placement {
                     Placement::Perspective { camera, .. } => (camera, false),
                     Placement::Weak { .. } => {
@@ -520,6 +526,7 @@ pub fn answer(
                 let placement = input
                     .placement
                     .ok_or(ConventionError::NoPlacement("mediapipe"))?;
+                placement.validate()?;
                 let mesh = input.mesh.ok_or_else(|| {
                     ConventionError::NoMesh("this model serves no MediaPipe mesh".into())
                 })?;
