@@ -675,3 +675,47 @@ fn worked_example_of_the_docs() {
         }
     }
 }
+
+/// Where each preset locks: Pose_Para (`XYZ`, middle yaw) at yaw ±90°, a face in profile;
+/// Unity (`YXZ`, middle x) at pitch ±90°, a face looking straight up or down. There the
+/// answer says so, the angles still rebuild the matrix, and the quaternion is as exact as
+/// anywhere.
+#[test]
+fn each_preset_locks_where_its_middle_axis_is_at_90() {
+    let cases = [
+        (EulerSpec::POSE_PARA, rot(90.0, 20.0, 10.0), true),
+        (EulerSpec::POSE_PARA, rot(10.0, 90.0, 20.0), false),
+        (EulerSpec::UNITY, rot(0.0, 90.0, 0.0), true),
+        (EulerSpec::UNITY, rot(0.0, -89.5, 0.0), true),
+        (EulerSpec::UNITY, rot(0.0, 80.0, 0.0), false),
+        (EulerSpec::OPENFACE, rot(-90.0, 5.0, 5.0), true),
+    ];
+    for (spec, r, locked) in cases {
+        let e = euler(&spec, &r);
+        assert_eq!(
+            e.near_gimbal_lock,
+            locked,
+            "{}: {:?}",
+            spec.describe(),
+            e.angles
+        );
+        assert!(matrix_err(&spec.rotation(e.angles), r.matrix()) < 1e-9);
+        let q = quaternion(&r);
+        let qr = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q.w, q.x, q.y, q.z,
+        ));
+        assert!(matrix_err(&qr.to_rotation_matrix().into_inner(), r.matrix()) < 1e-14);
+    }
+    // The warning a request gets there.
+    let reqs = [ConventionRequest::Euler(EulerSpec::UNITY)];
+    let input = PoseInput {
+        rotation: rot(0.0, 90.0, 0.0),
+        placement: None,
+        image_size: None,
+        orientation: None,
+        mesh: None,
+        refit: None,
+    };
+    let out = answer(&reqs, &input).unwrap();
+    assert!(out.warnings[0].to_string().contains("gimbal lock"));
+}
