@@ -77,7 +77,7 @@ pub enum ConventionError {
 
     #[error(
         "convention {0} needs the face's position, which needs camera intrinsics or the image \
-         size (send camera {{fx, fy, cx, cy}} or image_size {{width, height}})"
+         size (send camera {{fx, fy, cx, cy}} or image_size [width, height])"
     )]
     NeedsImageSize(&'static str),
 
