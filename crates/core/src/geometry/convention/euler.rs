@@ -52,7 +52,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Vector3};
 
 use super::request::ConventionError;
 
@@ -569,9 +569,4 @@ fn intrinsic_angles_lock_first(m: &Matrix3<f64>, order: Order) -> [f64; 3] {
         Axis::Z => (rest[(1, 0)], rest[(0, 0)]),
     };
     [0.0, b, p.atan2(q)]
-}
-
-/// The rotation of a rotation matrix as given (for tests and callers).
-pub fn rotation_of(m: Matrix3<f64>) -> Rotation3<f64> {
-    Rotation3::from_matrix_unchecked(m)
 }
