@@ -10,11 +10,35 @@
 //! `R` maps a model-frame point `X` (x towards the subject's left, y up, z towards the camera, mm)
 //! into the camera frame; see [`super::projection`] for the step to image pixels. Estimators work
 //! on rotation matrices and convert to angles only at the edge, through [`EulerAngles`].
+//!
+//! The other conventions a caller can ask for (issue 39, docs/API.md "Conventions") live in the
+//! submodules, so that no other module converts between angles and matrices:
+//! - [`euler`]: Euler angles in any named order, kind, units, axes and matrix sense;
+//! - [`camera`]: where the face is ([`Placement`]), the camera a convention refers to, and the
+//!   camera's orientation in the world ([`CameraOrientation`]);
+//! - [`peers`]: OpenCV's `rvec`/`tvec` and MediaPipe's facial transformation matrix;
+//! - [`request`]: the request option `conventions` parsed from plain values, with typed errors,
+//!   and [`answer`], a pose to one answer per requested name.
 
 use nalgebra::{Matrix3, Rotation3, Unit, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result, ensure_finite};
+
+pub mod camera;
+#[cfg(test)]
+mod conventions_tests;
+pub mod euler;
+pub mod peers;
+pub mod request;
+
+pub use camera::{CameraOrientation, CameraPose, ImageSize, Placement, assumed_camera};
+pub use euler::{Axes, EulerSpec, Kind, Matrices, Order, Units};
+pub use peers::{MEDIAPIPE_CAMERA, MediaPipeAnswer, MeshFrame, ObjectFrame, OpenCvAnswer};
+pub use request::{
+    ConventionAnswer, ConventionAnswers, ConventionError, ConventionRequest, ConventionWarning,
+    EulerAnswer, PoseInput, QuaternionAnswer, Refit, answer,
+};
 
 /// Head pose angles in degrees, `Pose_Para` convention (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
