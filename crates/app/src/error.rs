@@ -41,7 +41,7 @@ pub fn bounded_message(message: String) -> String {
 
 use facepose_core::model::validate::ValidationReport;
 
-use crate::jobs::{JobStage, JobState};
+use crate::job_state::{JobStage, JobState};
 
 /// The class of an error: fixes the status on both transports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -36,6 +36,14 @@ pub trait FaceInput {
 /// One face's outcome: its pose, or its own error (a batch or a frame goes on).
 pub type FaceOutcome = Result<FacePose, ServiceError>;
 
+/// Counts one face's outcome in `tally`: its method, or its error's kind.
+fn count(tally: &mut FaceTally, outcome: &FaceOutcome) {
+    match outcome {
+        Ok(p) => tally.ok(p.record.method),
+        Err(e) => tally.err(e.kind()),
+    }
+}
+
 /// A pose with the model that made it.
 pub struct Answer {
     pub pose: FacePose,
@@ -80,7 +88,7 @@ impl App {
             .spec(&mut points)
             .and_then(|spec| estimate_face(&model, &spec));
         let mut tally = FaceTally::default();
-        tally.count(&outcome);
+        count(&mut tally, &outcome);
         self.metrics.faces(&tally, transport);
         outcome.map(|pose| Answer { pose, model })
     }
@@ -200,7 +208,7 @@ impl BatchRun {
             let outcome = face
                 .spec(&mut points)
                 .and_then(|spec| estimate_face(model, &spec));
-            self.tally.count(&outcome);
+            count(&mut self.tally, &outcome);
             out.push(answer(face, outcome));
         }
         Ok(out)
@@ -283,7 +291,7 @@ impl StreamSession {
                 let spec = face.spec(&mut points)?;
                 estimate_face(m, &spec)
             });
-            tally.count(&outcome);
+            count(&mut tally, &outcome);
             let smoothed = match &mut outcome {
                 Ok(p) => self.tracks.smooth(track_key(face.track_id(), i), p),
                 Err(_) => Smoothed::default(),

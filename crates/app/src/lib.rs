@@ -12,6 +12,7 @@ pub mod auth;
 pub mod blocking;
 pub mod error;
 pub mod estimate;
+pub mod job_state;
 pub mod jobs;
 pub mod lifecycle;
 pub mod metrics;

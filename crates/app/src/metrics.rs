@@ -29,7 +29,6 @@ use metrics::{counter, describe_counter, describe_gauge, describe_histogram, gau
 use metrics_exporter_prometheus::{PrometheusBuilder, PrometheusHandle, PrometheusRecorder};
 
 use crate::error::ErrorKind;
-use crate::registry::ServedModel;
 
 /// Latency buckets, seconds: 50 µs to 10 s.
 const BUCKETS: [f64; 17] = [
@@ -176,11 +175,11 @@ impl Metrics {
 
     /// The models served at start: one `facepose_model_info` series each; the registry gauges
     /// at zero.
-    pub fn models<'a>(&self, served: impl IntoIterator<Item = &'a ServedModel>, default: &str) {
+    pub fn models<'a>(&self, served: impl IntoIterator<Item = ModelInfo<'a>>, default: &str) {
         let mut rows = lock(&self.0.model_info);
         rows.clear();
         for m in served {
-            rows.insert(m.name.clone(), model_info_row(m, default));
+            rows.insert(m.name.to_string(), model_info_row(m, default));
         }
         drop(rows);
         self.sync_problems(0);
@@ -188,9 +187,9 @@ impl Metrics {
     }
 
     /// A version swapped in: its info series replaces the replaced one's (which is removed).
-    pub fn model_swapped(&self, old: Option<&ServedModel>, new: &ServedModel, default: &str) {
+    pub fn model_swapped(&self, old: Option<ModelInfo<'_>>, new: ModelInfo<'_>, default: &str) {
         swap_row(&mut lock(&self.0.model_info), old, new, default);
-        let name = new.name.clone();
+        let name = new.name.to_string();
         self.with(|| counter!("facepose_model_swaps_total", "name" => name).increment(1));
     }
 
@@ -278,14 +277,6 @@ pub struct FaceTally {
 }
 
 impl FaceTally {
-    /// Counts one face's outcome: its method, or its error's kind.
-    pub fn count(&mut self, outcome: &Result<crate::pose::FacePose, crate::error::ServiceError>) {
-        match outcome {
-            Ok(p) => self.ok(p.record.method),
-            Err(e) => self.err(e.kind()),
-        }
-    }
-
     pub fn ok(&mut self, m: Method) {
         self.by_method[m.index()] += 1;
     }
@@ -327,15 +318,27 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 
 type ModelRows = BTreeMap<String, (String, String, bool)>;
 
-fn model_info_row(m: &ServedModel, default: &str) -> (String, String, bool) {
-    (m.version.clone(), m.checksum.clone(), m.name == default)
+/// What the metrics show of a served model (`facepose_model_info`).
+#[derive(Debug, Clone, Copy)]
+pub struct ModelInfo<'a> {
+    pub name: &'a str,
+    pub version: &'a str,
+    pub checksum: &'a str,
 }
 
-fn swap_row(rows: &mut ModelRows, old: Option<&ServedModel>, new: &ServedModel, default: &str) {
+fn model_info_row(m: ModelInfo<'_>, default: &str) -> (String, String, bool) {
+    (
+        m.version.to_string(),
+        m.checksum.to_string(),
+        m.name == default,
+    )
+}
+
+fn swap_row(rows: &mut ModelRows, old: Option<ModelInfo<'_>>, new: ModelInfo<'_>, default: &str) {
     if let Some(o) = old {
-        rows.remove(&o.name);
+        rows.remove(o.name);
     }
-    rows.insert(new.name.clone(), model_info_row(new, default));
+    rows.insert(new.name.to_string(), model_info_row(new, default));
 }
 
 /// A label value in the text format.
@@ -402,10 +405,10 @@ mod tests {
         let set = load_models(None).unwrap();
         let old = set.get(None).unwrap();
         let mut rows = ModelRows::new();
-        swap_row(&mut rows, None, old, "default");
+        swap_row(&mut rows, None, old.info(), "default");
         let mut new = load_models(None).unwrap().get(None).unwrap().clone();
         Arc::get_mut(&mut new).unwrap().version = "2".into();
-        swap_row(&mut rows, Some(old), &new, "default");
+        swap_row(&mut rows, Some(old.info()), new.info(), "default");
         let mut text = String::new();
         write_model_info(&mut text, &rows);
         let series: Vec<&str> = text

@@ -31,7 +31,7 @@ pub struct FacePose {
     pub rotation: facepose_core::geometry::Rotation,
     /// The covariance of the rotation's small turn (radians²), when the answer has an
     /// uncertainty: what the stream's Kalman filter weighs the frame by.
-    pub turn_cov: Option<nalgebra::Matrix3<f64>>,
+    pub turn_cov: Option<facepose_core::geometry::TurnCovariance>,
     pub scheme: String,
 }
 

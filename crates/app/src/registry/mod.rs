@@ -23,6 +23,7 @@
 
 pub mod catalog;
 pub mod changes;
+pub mod file_ops;
 pub mod pointer;
 pub mod versions;
 pub mod watch;
@@ -34,7 +35,7 @@ use std::sync::{Arc, Mutex};
 use arc_swap::ArcSwap;
 
 use crate::error::ServiceError;
-use crate::metrics::Metrics;
+use crate::metrics::{Metrics, ModelInfo};
 pub use catalog::{Catalog, StoredVersions, VersionInfo, embedded_version};
 pub use changes::version_error;
 use facepose_core::model::bundle::{Bundle, BundleError, Provenance};
@@ -81,6 +82,15 @@ pub struct ServedModel {
 }
 
 impl ServedModel {
+    /// What the metrics show of it.
+    pub fn info(&self) -> ModelInfo<'_> {
+        ModelInfo {
+            name: &self.name,
+            version: &self.version,
+            checksum: &self.checksum,
+        }
+    }
+
     fn new(bundle: Bundle, model: PoseModel, source: ModelSource, store: Option<String>) -> Self {
         ServedModel {
             name: bundle.name,
@@ -245,7 +255,7 @@ impl Registry {
 
     /// A registry following the models folder `dir`, reporting into `metrics`.
     pub fn with_metrics(set: ModelSet, dir: Option<PathBuf>, metrics: Metrics) -> Self {
-        metrics.models(set.iter().map(|m| &**m), set.default_name());
+        metrics.models(set.iter().map(|m| m.info()), set.default_name());
         Registry {
             current: ArcSwap::from_pointee(set),
             dir,
@@ -299,8 +309,11 @@ impl Registry {
             .and_then(|s| old.by_store(s))
             .or_else(|| old.get(Some(&model.name)).ok())
             .cloned();
-        self.metrics
-            .model_swapped(previous.as_deref(), &model, old.default_name());
+        self.metrics.model_swapped(
+            previous.as_deref().map(ServedModel::info),
+            model.info(),
+            old.default_name(),
+        );
         let mut failures = lock(&self.failures);
         if failures
             .remove(model.store.as_deref().unwrap_or(&model.name))
@@ -488,7 +501,7 @@ pub(crate) mod testing {
     pub fn temp_root(tag: &str) -> PathBuf {
         let d = std::env::temp_dir().join(format!(
             "facepose-registry-{tag}-{}",
-            super::versions::unique_suffix()
+            super::file_ops::unique_suffix()
         ));
         fs::create_dir_all(&d).unwrap();
         d

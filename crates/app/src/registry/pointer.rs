@@ -9,7 +9,7 @@ use std::fs::{self, File};
 use std::io::Write;
 use std::path::Path;
 
-use super::versions::{VersionError, io, sync_dir, unique_suffix};
+use super::file_ops::{VersionError, io, sync_dir, unique_suffix};
 
 /// The active pointer's file name.
 pub const ACTIVE_FILE: &str = "ACTIVE";

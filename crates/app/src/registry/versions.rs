@@ -35,7 +35,7 @@ use std::time::Duration;
 
 use super::pointer::{next_id, numeric, read_pointer, write_pointer};
 use facepose_core::model::bundle::Bundle;
-use facepose_files::store::{self, MODEL_FILE, StoreError, write_bundle_dir};
+use facepose_files::store::{MODEL_FILE, write_bundle_dir};
 
 /// The folder of numbered versions.
 pub const VERSIONS_DIR: &str = "versions";
@@ -43,51 +43,8 @@ const LOCK_FILE: &str = ".lock";
 /// Hidden temporary entries older than this are removed (a write takes well under a second).
 pub const STALE_AGE: Duration = Duration::from_secs(10 * 60);
 
-/// A failure of a versions operation.
-#[derive(Debug, thiserror::Error)]
-pub enum VersionError {
-    #[error("{}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error(transparent)]
-    Store(#[from] StoreError),
-    #[error("model {name:?} has no version {version:?}{}", list(existing))]
-    NotFound {
-        name: String,
-        version: String,
-        existing: Vec<String>,
-    },
-    #[error("version {version} of model {name:?} is active; activate another version first")]
-    Active { name: String, version: String },
-    #[error(
-        "version {version} of model {name:?} is the bundle deployed with the folder ({}); it is not deleted through the API",
-        path.display()
-    )]
-    Legacy {
-        name: String,
-        version: String,
-        path: PathBuf,
-    },
-    #[error("{0}")]
-    Invalid(String),
-}
-
-fn list(v: &[String]) -> String {
-    if v.is_empty() {
-        "; it has none".into()
-    } else {
-        format!("; it has {}", v.join(", "))
-    }
-}
-
-pub(super) fn io(path: &Path) -> impl FnOnce(std::io::Error) -> VersionError + '_ {
-    move |source| VersionError::Io {
-        path: path.into(),
-        source,
-    }
-}
+pub use super::file_ops::VersionError;
+use super::file_ops::{io, sync_dir, unique_suffix};
 
 /// One version on disk.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -320,12 +277,6 @@ impl Drop for Lock {
     fn drop(&mut self) {
         let _ = self.0.unlock();
     }
-}
-
-pub(super) use facepose_files::store::unique_suffix;
-
-pub(super) fn sync_dir(dir: &Path) -> Result<(), VersionError> {
-    store::sync_dir(dir).map_err(io(dir))
 }
 
 /// Writes a new version of model `name` under `root` and returns its id and bundle file. The

@@ -16,3 +16,7 @@ pub use projection::{WeakPerspective, image_to_plane};
 
 /// A rotation of the model frame into the camera frame (what estimators return).
 pub type Rotation = nalgebra::Rotation3<f64>;
+
+/// The covariance of a rotation's small turn `δ` (`R ← exp([δ]ₓ) R`), radians²: what a
+/// calibrated uncertainty carries and the stream's Kalman filter weighs a frame by.
+pub type TurnCovariance = nalgebra::Matrix3<f64>;
