@@ -9,11 +9,14 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 use facepose_core::estimate::Intrinsics;
+use facepose_core::geometry::convention::ConventionRequest;
 use facepose_core::model::PoseModel;
-use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
+use facepose_core::pose::{
+    ConventionOptions, EstimateOptions, LandmarkStyle, Method, conventions_of, estimate_with,
+};
 use facepose_core::shape::Shape2;
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
-use facepose_records::{Landmarks, PoseRecord};
+use facepose_records::{ConventionsRecord, Landmarks, PoseRecord};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -59,6 +62,12 @@ pub struct EstimateArgs {
     /// `"scheme"` takes precedence.
     #[arg(long)]
     scheme: Option<String>,
+    /// Conventions to answer in besides facepose's own, comma-separated, each
+    /// `name[:param=value...]`: quaternion, euler (e.g. `euler:preset=openface`,
+    /// `euler:order=zyx:units=radians`), opencv (`opencv:object_frame=model`), mediapipe
+    /// (docs/API.md, "Answers in your convention"). Each pose gains a `conventions` object.
+    #[arg(long, value_parser = parse_conventions)]
+    conventions: Option<Conventions>,
     /// Estimator (auto picks the most accurate for the input; README "Methods").
     #[arg(long, default_value = "auto", value_parser = Names::<Method>::new(&Method::NAMES))]
     method: Method,
@@ -121,6 +130,16 @@ fn parse_camera(s: &str) -> Result<Intrinsics, String> {
     let k = Intrinsics { fx, fy, cx, cy };
     k.validate().map_err(|e| e.to_string())?;
     Ok(k)
+}
+
+/// The parsed `--conventions` list.
+#[derive(Clone, Debug)]
+struct Conventions(Vec<ConventionRequest>);
+
+fn parse_conventions(s: &str) -> Result<Conventions, String> {
+    ConventionRequest::parse_list(s)
+        .map(Conventions)
+        .map_err(|e| e.to_string())
 }
 
 /// What a line may override.
@@ -190,13 +209,37 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                 style: line_opts.style.unwrap_or(style),
             };
             let scheme = scheme_of(&model, line_opts.scheme.or(a.scheme.clone()), &shape)?;
-            estimate_with(&model, &scheme, &shape, &opts)
-                .map(|e| (e, scheme))
-                .map_err(|e| e.to_string())
+            let e = estimate_with(&model, &scheme, &shape, &opts).map_err(|e| e.to_string())?;
+            let conventions = match &a.conventions {
+                Some(c) => Some(
+                    conventions_of(
+                        &model,
+                        &scheme,
+                        &shape,
+                        &opts,
+                        &e,
+                        &ConventionOptions {
+                            requests: &c.0,
+                            orientation: None,
+                            image_size: a.image_size,
+                        },
+                    )
+                    .map_err(|e| e.to_string())?,
+                ),
+                None => None,
+            };
+            Ok((e, scheme, conventions))
         });
         let value = match result {
-            Ok((e, scheme)) => {
-                let mut v = serde_json::to_value(PoseRecord::from(&e))?;
+            Ok((e, scheme, conventions)) => {
+                let mut record = PoseRecord::from(&e);
+                if let Some(c) = &conventions {
+                    record
+                        .warnings
+                        .extend(c.warnings.iter().map(ToString::to_string));
+                    record.conventions = Some(ConventionsRecord::from(c));
+                }
+                let mut v = serde_json::to_value(record)?;
                 if let Some(o) = v.as_object_mut() {
                     o.insert("scheme".into(), scheme.into());
                     if let Some(id) = id {

@@ -322,7 +322,8 @@ impl From<facepose_core::Error> for ServiceError {
             | E::Degenerate(_)
             | E::InvalidParameter { .. }
             | E::InvalidScheme { .. }
-            | E::NotAFace { .. } => e.to_string(),
+            | E::NotAFace { .. }
+            | E::Convention(_) => e.to_string(),
         })
     }
 }

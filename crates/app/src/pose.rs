@@ -6,9 +6,11 @@ use crate::error::ServiceError;
 use crate::registry::ServedModel;
 
 use facepose_core::estimate::Intrinsics;
+use facepose_core::geometry::convention::{CameraOrientation, ConventionRequest};
+use facepose_core::pose::{ConventionOptions, conventions_of};
 use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate_with};
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
-use facepose_records::PoseRecord;
+use facepose_records::{ConventionsRecord, PoseRecord};
 
 /// One face as a transport hands it over. Empty strings mean "not given".
 #[derive(Debug, Clone, Default)]
@@ -21,6 +23,10 @@ pub struct FaceSpec<'a> {
     pub style: Option<&'a str>,
     /// With it, the landmarks are normalized to this image size (MediaPipe's x, y).
     pub image_size: Option<ImageSize>,
+    /// The conventions to answer in besides facepose's own (none: nothing more is computed).
+    pub conventions: &'a [ConventionRequest],
+    /// The camera's orientation in the world: the conventions' answers then refer to it.
+    pub orientation: Option<CameraOrientation>,
 }
 
 /// An estimate as the transports send it, with the rotation for stream smoothing and the
@@ -74,19 +80,37 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         None => LandmarkStyle::default(),
     };
     let shape = pixel_shape(face.landmarks, face.image_size)?;
-    let estimate = estimate_with(
-        &model.model,
-        scheme,
-        &shape,
-        &EstimateOptions {
-            method,
-            camera: face.camera,
-            style,
-        },
-    )?;
+    let opts = EstimateOptions {
+        method,
+        camera: face.camera,
+        style,
+    };
+    let estimate = estimate_with(&model.model, scheme, &shape, &opts)?;
+    let conventions = if face.conventions.is_empty() {
+        None
+    } else {
+        Some(conventions_of(
+            &model.model,
+            scheme,
+            &shape,
+            &opts,
+            &estimate,
+            &ConventionOptions {
+                requests: face.conventions,
+                orientation: face.orientation,
+                image_size: face.image_size,
+            },
+        )?)
+    };
     let rotation = estimate.rotation;
     let turn_cov = estimate.uncertainty.map(|u| u.turn_cov);
-    let record = PoseRecord::from(estimate);
+    let mut record = PoseRecord::from(estimate);
+    if let Some(c) = &conventions {
+        record
+            .warnings
+            .extend(c.warnings.iter().map(ToString::to_string));
+        record.conventions = Some(ConventionsRecord::from(c));
+    }
     if !record.is_finite() {
         return Err(ServiceError::invalid(
             "could not estimate a pose from these landmarks: the result is not finite; \

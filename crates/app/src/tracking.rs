@@ -202,6 +202,7 @@ mod tests {
                 translation: None,
                 warnings: vec![],
                 uncertainty: None,
+                conventions: None,
             },
             rotation,
             turn_cov: None,

@@ -54,6 +54,10 @@ pub enum Error {
         limit: f64,
     },
 
+    /// A requested answer convention cannot be given (`geometry::convention`).
+    #[error(transparent)]
+    Convention(#[from] crate::geometry::convention::ConventionError),
+
     /// An iterative solver failed to converge or a decomposition failed.
     #[error("numerical failure: {0}")]
     Numerical(String),

@@ -7,7 +7,12 @@
 //! for a point the client could not find. Angles are degrees (`Pose_Para` convention, see
 //! `facepose_core::geometry::convention`) and `rotation` is `R` as row-major nested arrays.
 
+mod conventions;
 mod number;
+
+pub use conventions::{
+    ConventionsRecord, EulerRecord, MediaPipeRecord, OpenCvRecord, QuaternionRecord,
+};
 
 use serde::de;
 use serde::{Deserialize, Deserializer, Serialize};
@@ -276,6 +281,9 @@ pub struct PoseRecord {
     /// How far to trust each angle (absent when the model has no calibration).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<UncertaintyRecord>,
+    /// The pose in the conventions the request named (absent when it named none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conventions: Option<ConventionsRecord>,
 }
 
 /// How far to trust one angle, degrees.
@@ -330,6 +338,7 @@ impl PoseRecord {
             .chain(self.translation.iter().flatten())
             .copied()
             .chain(self.uncertainty.iter().flat_map(UncertaintyRecord::numbers))
+            .chain(self.conventions.iter().flat_map(ConventionsRecord::numbers))
             .all(|v| v.is_finite())
     }
 }
@@ -347,6 +356,7 @@ impl From<Estimate> for PoseRecord {
             translation: e.translation.map(|t| [t.x, t.y, t.z]),
             warnings: e.warnings.iter().map(ToString::to_string).collect(),
             uncertainty: e.uncertainty.as_ref().map(UncertaintyRecord::from),
+            conventions: None,
         }
     }
 }

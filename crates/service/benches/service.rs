@@ -59,6 +59,8 @@ fn service(c: &mut Criterion) {
             camera: None,
             style: None,
             image_size: None,
+            conventions: &[],
+            orientation: None,
         };
         c.bench_function(&format!("estimate_face fit/{name}"), |b| {
             b.iter(|| estimate_face(&model, black_box(&spec)).unwrap())

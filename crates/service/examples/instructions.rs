@@ -125,9 +125,7 @@ fn main() {
         landmarks: &request.landmarks.0,
         scheme: request.scheme.as_deref(),
         method: request.method.as_deref(),
-        camera: None,
-        style: None,
-        image_size: None,
+        ..FaceSpec::default()
     };
     let basis = model
         .morph

@@ -53,7 +53,7 @@ impl VisibilityMap {
             }
             let mut out = vec![false; n];
             hpr.visibility_into(rotated, scratch, &mut out)?;
-            Ok(out)
+            Ok::<_, crate::Error>(out)
         };
         let mut bits = Vec::with_capacity(cells.len() * n);
         for cell in parallel::map_with(&cells, init, one) {

@@ -1,8 +1,10 @@
 //! One interface over every estimator: landmarks in a scheme the model serves -> rotation,
 //! angles, per-point visibility at the estimated pose, a fit residual and the method used.
 
+mod conventions;
 mod method;
 
+pub use conventions::{ConventionOptions, conventions_of};
 pub use method::{METHODS, Method, MethodSpec, Misfit, Needs, Ran, Runner, SubsetInput};
 
 use std::fmt;

@@ -123,6 +123,9 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
             width: s.width,
             height: s.height,
         }),
+        // The proto has no conventions yet (issue 39's gRPC part).
+        conventions: &[],
+        orientation: None,
     }
 }
 

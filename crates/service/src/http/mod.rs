@@ -15,6 +15,7 @@
 
 pub mod body;
 pub mod body_guard;
+pub mod conventions;
 pub mod cors;
 pub mod demo;
 pub mod error;

@@ -22,6 +22,7 @@ use super::body::{
     to_json, to_json_sized,
 };
 use super::body_guard::{BodyGuard, BodyKind};
+use super::conventions::{Conventions, Orientation};
 use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
 use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
@@ -42,6 +43,8 @@ impl FaceInput for PoseRequest {
             camera: self.camera.map(Into::into),
             style: self.landmark_style.as_deref(),
             image_size: image_size(self.image_size),
+            conventions: self.conventions.as_ref().map_or(&[], |c| &c.0[..]),
+            orientation: self.camera_orientation.map(|o| o.0),
         })
     }
 }
@@ -53,6 +56,8 @@ struct BatchDefaults {
     camera: Option<Camera>,
     landmark_style: Option<String>,
     image_size: Option<[f64; 2]>,
+    conventions: Option<Conventions>,
+    camera_orientation: Option<Orientation>,
 }
 
 /// A face of a batch with the batch's defaults.
@@ -74,6 +79,12 @@ impl FaceInput for BatchItem<'_> {
             camera: f.camera.or(d.camera).map(Into::into),
             style: f.landmark_style.as_deref().or(d.landmark_style.as_deref()),
             image_size: image_size(f.image_size.or(d.image_size)),
+            conventions: f
+                .conventions
+                .as_ref()
+                .or(d.conventions.as_ref())
+                .map_or(&[], |c| &c.0[..]),
+            orientation: f.camera_orientation.or(d.camera_orientation).map(|o| o.0),
         })
     }
 }
@@ -251,6 +262,8 @@ pub fn answer_batch(bytes: Bytes, run: &mut BatchRun) -> Result<Vec<u8>, HttpErr
         landmark_style,
         image_size,
         model: _,
+        conventions,
+        camera_orientation,
     } = req;
     let defaults = BatchDefaults {
         scheme,
@@ -258,6 +271,8 @@ pub fn answer_batch(bytes: Bytes, run: &mut BatchRun) -> Result<Vec<u8>, HttpErr
         camera,
         landmark_style,
         image_size,
+        conventions,
+        camera_orientation,
     };
     let items = faces.into_iter().map(|face| BatchItem {
         face,

@@ -161,7 +161,9 @@ impl<'a> Reader<'a> {
                 camera,
                 landmark_style,
                 image_size,
-                id
+                id,
+                conventions,
+                camera_orientation
             ]
         );
         Some(req)
@@ -173,7 +175,16 @@ impl<'a> Reader<'a> {
             self,
             face,
             landmarks,
-            [scheme, method, camera, landmark_style, image_size, id]
+            [
+                scheme,
+                method,
+                camera,
+                landmark_style,
+                image_size,
+                id,
+                conventions,
+                camera_orientation
+            ]
         );
         Some(face)
     }
@@ -206,7 +217,16 @@ impl<'a> Reader<'a> {
             self,
             req,
             faces,
-            [scheme, method, camera, landmark_style, image_size, model]
+            [
+                scheme,
+                method,
+                camera,
+                landmark_style,
+                image_size,
+                model,
+                conventions,
+                camera_orientation
+            ]
         );
         Some(req)
     }

@@ -17,6 +17,7 @@ use utoipa::openapi::schema::{
     ArrayBuilder, ObjectBuilder, OneOfBuilder, Schema, SchemaType, Type,
 };
 
+use super::conventions::{Conventions, Orientation};
 use super::error::ErrorObject;
 
 /// Pinhole camera intrinsics in pixels (image x right, y down).
@@ -208,6 +209,13 @@ pub struct PoseRequest {
     /// Echoed in the response.
     #[serde(default)]
     pub id: Option<FaceId>,
+    /// The conventions to answer in besides facepose's own (docs/API.md, "Answers in your
+    /// convention"); absent or empty: none, at no cost.
+    #[serde(default)]
+    pub conventions: Option<Conventions>,
+    /// The camera's orientation in the world: the conventions' answers then refer to it.
+    #[serde(default)]
+    pub camera_orientation: Option<Orientation>,
 }
 
 /// A pose with its scheme and model.
@@ -246,6 +254,13 @@ pub struct BatchFace {
     pub image_size: Option<[f64; 2]>,
     #[serde(default)]
     pub id: Option<FaceId>,
+    /// The conventions to answer in besides facepose's own (docs/API.md, "Answers in your
+    /// convention"); absent or empty: none, at no cost.
+    #[serde(default)]
+    pub conventions: Option<Conventions>,
+    /// The camera's orientation in the world: the conventions' answers then refer to it.
+    #[serde(default)]
+    pub camera_orientation: Option<Orientation>,
 }
 
 /// `POST /v1/pose:batch`: many faces, at most `--max-batch` (1000 by default).
@@ -279,6 +294,13 @@ pub struct BatchRequest {
     #[serde(default)]
     #[schema(max_length = 64)]
     pub model: Option<String>,
+    /// The conventions to answer in besides facepose's own (docs/API.md, "Answers in your
+    /// convention"); absent or empty: none, at no cost.
+    #[serde(default)]
+    pub conventions: Option<Conventions>,
+    /// The camera's orientation in the world: the conventions' answers then refer to it.
+    #[serde(default)]
+    pub camera_orientation: Option<Orientation>,
 }
 
 /// The result for one face of a batch: its pose, or its error.

@@ -4,6 +4,7 @@
 //! lines. What only a process shows (signals, exit statuses, kill -9) is in the root package's
 //! tests (tests/integration/service_process.rs).
 
+mod conventions;
 mod demo;
 mod grpc;
 mod http;

@@ -76,8 +76,9 @@ pub enum ConventionError {
     NotARotation(String),
 
     #[error(
-        "convention {0} needs the face's position, which needs camera intrinsics or the image \
-         size (send camera {{fx, fy, cx, cy}} or image_size [width, height])"
+        "convention {0} needs the face's position in a camera: send camera {{fx, fy, cx, cy}} \
+         (or, with MediaPipe's normalized landmarks, image_size [width, height], from which \
+         a camera is assumed)"
     )]
     NeedsImageSize(&'static str),
 
