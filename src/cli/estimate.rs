@@ -12,7 +12,8 @@ use facepose_core::estimate::Intrinsics;
 use facepose_core::geometry::convention::ConventionRequest;
 use facepose_core::model::PoseModel;
 use facepose_core::pose::{
-    ConventionOptions, EstimateOptions, LandmarkStyle, Method, conventions_of, estimate_with,
+    ConventionOptions, EstimateOptions, LandmarkStyle, METHODS, Method, conventions_of,
+    estimate_with,
 };
 use facepose_core::shape::Shape2;
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
@@ -69,7 +70,7 @@ pub struct EstimateArgs {
     #[arg(long, value_parser = parse_conventions)]
     conventions: Option<Conventions>,
     /// Estimator (auto picks the most accurate for the input; README "Methods").
-    #[arg(long, default_value = "auto", value_parser = Names::<Method>::new(&Method::NAMES))]
+    #[arg(long, default_value = "auto", value_parser = Names::<Method>::new(METHODS.iter().map(|m| (m.name, m.summary))))]
     method: Method,
     /// Model bundle directory (default: the embedded default model).
     #[arg(long)]
@@ -91,7 +92,9 @@ pub struct EstimateArgs {
     #[arg(
         long,
         default_value = "projected",
-        value_parser = Names::<LandmarkStyle>::new(&LandmarkStyle::NAMES)
+        value_parser = Names::<LandmarkStyle>::new(
+            LandmarkStyle::ALL.iter().zip(LandmarkStyle::NAMES).map(|(s, n)| (n, s.summary()))
+        )
     )]
     landmark_style: LandmarkStyle,
     /// The image's size `width,height` in pixels for every face: the landmarks are then

@@ -8,18 +8,18 @@ use std::str::FromStr;
 use clap::builder::{PossibleValue, TypedValueParser};
 use clap::error::ErrorKind;
 
-/// A parser of `T` by its `FromStr`, whose possible values are `names`.
+/// A parser of `T` by its `FromStr`, whose possible values are `(name, help)` pairs.
 #[derive(Clone)]
 pub struct Names<T> {
-    names: &'static [&'static str],
+    values: Vec<(&'static str, &'static str)>,
     parsed: PhantomData<fn() -> T>,
 }
 
 impl<T> Names<T> {
-    /// Values named by `names` (for `--help`), parsed by `T::from_str`.
-    pub const fn new(names: &'static [&'static str]) -> Self {
+    /// Values named and described by `values` (for `--help`), parsed by `T::from_str`.
+    pub fn new(values: impl IntoIterator<Item = (&'static str, &'static str)>) -> Self {
         Names {
-            names,
+            values: values.into_iter().collect(),
             parsed: PhantomData,
         }
     }
@@ -46,6 +46,10 @@ where
     }
 
     fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(self.names.iter().map(|n| PossibleValue::new(*n))))
+        Some(Box::new(
+            self.values
+                .iter()
+                .map(|&(name, help)| PossibleValue::new(name).help(help)),
+        ))
     }
 }

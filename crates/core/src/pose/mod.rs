@@ -125,6 +125,23 @@ pub enum LandmarkStyle {
 impl LandmarkStyle {
     /// Every style name, for messages.
     pub const NAMES: [&'static str; 2] = ["projected", "contour"];
+
+    /// Every style, in the order of [`LandmarkStyle::NAMES`].
+    pub const ALL: [LandmarkStyle; 2] = [LandmarkStyle::Projected, LandmarkStyle::Contour];
+
+    /// One line for listings and `--help`.
+    pub fn summary(self) -> &'static str {
+        match self {
+            LandmarkStyle::Projected => {
+                "3D-style: every landmark is its 3D point's projection, hidden or not (3DMM \
+                 fits, AFLW2000-3D)"
+            }
+            LandmarkStyle::Contour => {
+                "2D-style: hidden jaw points sit on the visible outline (300-W, dlib), so the \
+                 fit leaves them out"
+            }
+        }
+    }
 }
 
 impl FromStr for LandmarkStyle {
