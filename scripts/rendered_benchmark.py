@@ -32,6 +32,7 @@ SIZES = [(256, 256), (384, 384), (512, 512), (640, 480), (800, 600), (1024, 768)
 YAW_BANDS = [(0, 15), (15, 30), (30, 45), (45, 60), (60, 75), (75, 91)]
 HEAD_MM = 250.0  # crown to chin and a little neck: what the framing fraction refers to
 TEST_SHARE = 3  # identities in the test split
+MP_DECIMALS = 4  # MediaPipe's normalized coordinates: 0.064 px at most at 1280 px
 
 
 def r2(v, d=2):
@@ -118,7 +119,8 @@ class Bench:
         mres = None
         if pts is not None:
             m = self.geom.matrix(img, pts)
-            mres = {"landmarks": [[round(p[0], 5), round(p[1], 5)] for p in pts],
+            mres = {"landmarks": [[round(p[0], MP_DECIMALS), round(p[1], MP_DECIMALS)]
+                                  for p in pts],
                     "facial_transformation_matrix": [r2(row, 4) for row in m]}
         self.t_detect += time.time() - t0
         return dres, mres, up
@@ -230,11 +232,11 @@ def sanity_checks(bench, ids, failures):
                 failures.append(f"identity render {idt.name} {gname}")
 
     print("known-sign turns (nose tip relative to the eyes' midpoint, image px, y down):")
-    for idt in ids[:3]:
+    for idt in ids:
         for gname in ("bfm", "mediapipe"):
             res = {}
-            for label, pose in (("0", (0, 0, 0)), ("yaw+30", (0, 30, 0)),
-                                ("pitch+25", (25, 0, 0)), ("roll+20", (0, 0, 20))):
+            for label, pose in (("0", (0, 0, 0)), ("yaw+20", (0, 20, 0)),
+                                ("pitch+20", (20, 0, 0)), ("roll+20", (0, 0, 20))):
                 cam = rr.Camera("ortho", 512, 512, s=1.6, t=[256, 230])
                 deg = {"light": None}
                 img, R, o_uv, vis = bench.render(idt, gname, pose, cam, deg,
@@ -249,20 +251,66 @@ def sanity_checks(bench, ids, failures):
                               for k, p in pts.items()}
             for det in ("oracle", "dlib", "mediapipe"):
                 if not all(det in r for r in res.values()):
-                    print(f"  {idt.name} {gname} {det}: not detected at every pose  FAIL")
-                    failures.append(f"turn {idt.name} {gname} {det}")
+                    # a missed detection is no sign error; the oracle must be there
+                    print(f"  {idt.name:28s} {gname:9s} {det:9s} not detected at every pose")
+                    if det == "oracle":
+                        failures.append(f"turn {idt.name} {gname} {det}")
                     continue
-                dx = res["yaw+30"][det][0][0] - res["0"][det][0][0]
-                dy = res["pitch+25"][det][0][1] - res["0"][det][0][1]
+                dx = res["yaw+20"][det][0][0] - res["0"][det][0][0]
+                dy = res["pitch+20"][det][0][1] - res["0"][det][0][1]
                 e0, e1 = res["0"][det][1], res["roll+20"][det][1]
                 droll = np.degrees(np.arctan2(e1[1], e1[0]) - np.arctan2(e0[1], e0[0]))
                 ok = dx < 0 and dy < 0 and droll > 0
-                print(f"  {idt.name:28s} {gname:9s} {det:9s} yaw +30: nose dx {dx:+6.1f} "
-                      f"(expect < 0, image-left); pitch +25: nose dy {dy:+6.1f} (expect < 0, "
+                print(f"  {idt.name:28s} {gname:9s} {det:9s} yaw +20: nose dx {dx:+6.1f} "
+                      f"(expect < 0, image-left); pitch +20: nose dy {dy:+6.1f} (expect < 0, "
                       f"up); roll +20: eye line {droll:+5.1f} deg clockwise (expect > 0)"
                       + ("" if ok else "  FAIL"))
                 if not ok:
                     failures.append(f"turn {idt.name} {gname} {det}")
+
+    print("in-plane turns: the photo crop rotated on screen vs the render at the photo's pose with"
+          " the same roll added in the camera frame (bfm geometry); detector points against the"
+          " photo's own points moved by the same rotation (mean px; '-' = not detected):")
+    print(f"  {'identity':28s} roll   photo: dlib68    mp478 | render: dlib68    mp478")
+    tally = {"photo": [0, 0, 0], "render": [0, 0, 0]}
+    for idt in ids:
+        g = idt.geometries["bfm"]
+        s_, R0, t_ = g["photo_cam"]
+        centre = (float(t_[0]), float(-t_[1]))
+        for roll in (-35, 35):
+            M = cv2.getRotationMatrix2D((centre[0] - 0.5, centre[1] - 0.5), -roll, 1.0)
+            photo = cv2.warpAffine(idt.texture, M, (rh.TEX, rh.TEX), flags=cv2.INTER_CUBIC,
+                                   borderMode=cv2.BORDER_REPLICATE)
+
+            def moved(p):
+                return (p - 0.5) @ M[:, :2].T + M[:, 2] + 0.5
+
+            ref68, ref478 = moved(idt.dlib68), moved(idt.mp478)
+            R = rr.rot_pose_para(0, 0, roll) @ R0
+            cam = rr.Camera("ortho", rh.TEX, rh.TEX, s=s_, t=centre)
+            bg = cv2.GaussianBlur(photo, (0, 0), 8)
+            img, *_ = bench.render(idt, "bfm", rr.pose_para_angles(R), cam, {"light": None},
+                                   np.random.default_rng(0), background=bg)
+            cells = []
+            for kind, im in (("photo", photo), ("render", img)):
+                dres, mres, _ = bench.detect(im)
+                tally[kind][0] += 1
+                c = []
+                if dres:
+                    tally[kind][1] += 1
+                    c.append(np.linalg.norm(np.array(dres["ibug68"]) + 0.5 - ref68, axis=1).mean())
+                else:
+                    c.append(None)
+                if mres:
+                    tally[kind][2] += 1
+                    c.append(np.linalg.norm(np.array(mres["landmarks"]) * rh.TEX - ref478,
+                                            axis=1).mean())
+                else:
+                    c.append(None)
+                cells += ["       -" if v is None else f"{v:8.1f}" for v in c]
+            print(f"  {idt.name:28s} {roll:+4d}  {cells[0]} {cells[1]} |   {cells[2]} {cells[3]}")
+    for kind, (n, d, m) in tally.items():
+        print(f"  {kind}: dlib found {d}/{n}, MediaPipe found {m}/{n}")
 
 
 # ---------------------------------------------------------------- sets
@@ -331,7 +379,7 @@ def write_fixtures(bench, ids, args):
         key = rec["set"] if rec["set"] != "trajectory" else rec["trajectory"]["id"]
         name = {"identity": "identity", "grid": "grid", "random": "random"}.get(key, key)
         if rec["set"] == "grid":
-            name = f"grid-{rec['geometry']}"
+            name = "grid-" + rec["identity"].split("/")[-1].replace("#", "-")
         groups.setdefault(name, []).append(rec)
     written = []
     for name, recs in sorted(groups.items()):
