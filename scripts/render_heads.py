@@ -14,8 +14,8 @@ Per identity (one face of a real photo shipped inside a package):
       relative: its frontal direction is only as good as that alignment (a constant per-identity
       offset of a few degrees).
   (b) "bfm": the bfm68 morphable model (mean + 40 identity + 10 expression bases, Gaussian prior
-      around the published coefficient means) fitted to dlib's 68 points on the photo under weak
-      perspective; the canonical MediaPipe mesh is similarity-aligned to the fitted frontal 68
+      around the published coefficient means) fitted under weak perspective to MediaPipe's points
+      on the photo mapped to ibug68 (2D only; MediaPipe's depth is not used); the canonical MediaPipe mesh is similarity-aligned to the fitted frontal 68
       points and then deformed through the 68-point correspondence by a 3D thin-plate spline, so
       the dense surface is in the bfm model frame and the truth is absolute.
 """
@@ -31,7 +31,7 @@ import numpy as np
 
 import render_raster as rr
 
-TEX = 512
+TEX = 640  # texture crop, px: 4 dlib boxes wide, the face about 160 px
 
 
 # ---------------------------------------------------------------- photos
@@ -69,7 +69,7 @@ def face_boxes(dl, name, img, multi):
     return out
 
 
-def crop_texture(img, box, size=TEX, factor=3.2):
+def crop_texture(img, box, size=TEX, factor=4.0):
     """A square crop around a dlib box (side = factor x box width, centred a little above the box
     centre, borders replicated), resampled to size x size."""
     cx, cy, w = box
@@ -279,13 +279,18 @@ def build_head(face_V, face_tris, face_uv, photo_cam, rings=9):
         shell_uv[k] = q
         prev_r = np.maximum(r, prev_r)
     vis_last = np.where(hidden.any(0), hidden.argmax(0) - 1, rings - 1)
+    # Where the photo's silhouette falls varies from column to column: a running minimum over
+    # neighbouring columns keeps the seam between the photo's pixels and the hair from zigzagging.
+    vis_last = np.min(np.stack([np.roll(vis_last, k) for k in (-2, -1, 0, 1, 2)]), 0)
+    hidden = np.arange(rings)[:, None] > vis_last[None, :]
     for i in range(n):
         # the donor column: phi pulled towards the top of the head (phi = 90 degrees)
         target = np.pi / 2 + 0.35 * (((phi[i] - np.pi / 2) + np.pi) % (2 * np.pi) - np.pi)
         dist = np.abs(((phi - target) + np.pi) % (2 * np.pi) - np.pi)
         dist[vis_last < 1] = np.inf
         j = int(np.argmin(dist))
-        donor = shell_uv[: max(vis_last[j], 0) + 1, j]
+        # the outer half of what the photo shows above the forehead: hair more than skin
+        donor = shell_uv[max(vis_last[j], 0) // 2: max(vis_last[j], 0) + 1, j]
         for k in range(rings):
             if hidden[k, i]:
                 # walk back and forth over the donor's visible hair band
@@ -368,8 +373,13 @@ def make_identity(name, texture, dl, fm, canonical, bfm):
     idt.mp478 = mp[:, :2] * TEX
     face_uv = mp[:468, :2] * TEX
 
-    # (b) bfm fit to dlib's 68 points, frontal shape in the model frame.
-    X68, coef, s, R, t, rms = fit_bfm(idt.dlib68, mean, B, mu)
+    # (b) bfm fit to MediaPipe's points on the photo mapped to ibug68 (the mapping of the shared
+    # data): the texture coordinates are MediaPipe's points, so the fitted face lines up with its
+    # texture, and the mapped jaw points are fixed vertices like bfm's (dlib's jaw follows the
+    # visible contour, which biases the fit of a turned face: insightface/t1#4 came out at yaw
+    # 28 from dlib's points, 42 from MediaPipe's, 46 by MediaPipe's own 3D points).
+    idt.mp_ibug68 = ibug_points(idt.mp478, ibug_ix)
+    X68, coef, s, R, t, rms = fit_bfm(idt.mp_ibug68, mean, B, mu)
     idt.bfm_coef, idt.bfm_rms = coef, rms
     centre = X68.mean(0)
     X68c = X68 - centre

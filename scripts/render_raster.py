@@ -175,7 +175,32 @@ def render(Xr, tris, tex_uv, texture, cam, background, light=None, cull=True):
     img = alpha * col + (1 - alpha) * background.astype(np.float32)
     img = np.clip(img, 0, 255).astype(np.uint8)
     zb = zbuffer_depth(pix, tri, L, depth, tris, W, H)
-    return img, mask, uv, depth, zb
+    counts = np.bincount(tri, minlength=len(tris))
+    return img, mask, uv, depth, zb, counts
+
+
+def stretch_stats(uv, tex_uv, tris, counts, ref):
+    """How much the texture is magnified on screen, triangle by triangle (screen area over
+    texture area, divided by `ref`, the magnification of a surface facing both the photo's and
+    the render's camera), over the drawn pixels of `tris`: the pixel-weighted 90th percentile and
+    the share of pixels magnified more than 2.5x in area (the texture seen at a grazing angle in
+    the photo and stretched by the render)."""
+
+    def area(P):
+        e1, e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+
+    a_s, a_t = area(uv[tris]), area(tex_uv[tris])
+    k = counts > 0
+    if not k.any():
+        return {"face_px": 0, "p90": None, "share_over_2_5": None}
+    st = a_s[k] / np.maximum(a_t[k], 1e-6) / ref
+    w = counts[k].astype(float)
+    o = np.argsort(st)
+    cw = np.cumsum(w[o]) / w.sum()
+    p90 = float(st[o][np.searchsorted(cw, 0.9)])
+    return {"face_px": int(w.sum()), "p90": round(p90, 2),
+            "share_over_2_5": round(float(w[st > 2.5].sum() / w.sum()), 3)}
 
 
 def visible(points_uv, points_depth, zb, tol):

@@ -130,8 +130,12 @@ class Bench:
         t0 = time.time()
         Xr, R = rh.pose_vertices(g["V"], g["wts"], g["pivot"], *pose)
         bg = rr.background(rng_bg, cam.width, cam.height) if background is None else background
-        img, mask, uv, depth, zb = rr.render(Xr, g["T"], g["uv"], idt.texture, cam, bg,
-                                             light=deg.get("light"))
+        img, mask, uv, depth, zb, counts = rr.render(Xr, g["T"], g["uv"], idt.texture, cam, bg,
+                                                     light=deg.get("light"))
+        nf = len(self.canonical[1])  # the face's triangles come first
+        s_render = cam.s if cam.kind == "ortho" else cam.fy / -cam.T[2]
+        self.last_stretch = rr.stretch_stats(uv, g["uv"], g["T"][:nf], counts[:nf],
+                                             (s_render / g["photo_cam"][0]) ** 2)
         img = rr.degrade(img, deg)
         # oracle: the 68 ibug points of the posed mesh, projected, with z-buffer visibility
         P68 = rh.ibug_points(Xr, idt.ibug_ix)
@@ -153,6 +157,7 @@ class Bench:
             "truth": {"pitch": round(pitch, 3), "yaw": round(yaw, 3), "roll": round(roll, 3),
                       "rotation": [r2(row, 6) for row in R]},
             "trajectory": meta.get("trajectory"), "degradation": deg_out,
+            "texture_stretch": self.last_stretch,
             "oracle": {"ibug68": [r2(p) for p in o_uv],
                        "visible": "".join("1" if v else "0" for v in vis)},
             "dlib": None if dres is None else dict(dres, upsample=up),
@@ -408,7 +413,7 @@ def write_fixtures(bench, ids, args):
                                         r2(rr.pose_para_angles(i.photo_pose_b), 2))),
              "photo_pose_mediapipe": dict(zip(("pitch", "yaw", "roll"),
                                               r2(rr.pose_para_angles(i.photo_pose_a), 2))),
-             "bfm_fit_rms_px": round(i.bfm_rms, 2), "bfm_fit_on": "dlib ibug68 of the crop",
+             "bfm_fit_rms_px": round(i.bfm_rms, 2), "bfm_fit_on": "MediaPipe's 478 points on the crop mapped to ibug68",
              "bfm_coefficients": r2(i.bfm_coef, 3),
              "photo_dlib68_px": [r2(p) for p in i.dlib68],
              "photo_mediapipe478_px": [r2(p) for p in i.mp478],
@@ -523,6 +528,45 @@ def report(bench, ibug_ix_of):
                   f" | {f('d51r')} {f('m51r')}")
 
 
+def stretch_report(bench, ibug_ix_of):
+    recs = [r for r in bench.records if r["set"] != "identity"]
+    print("\ntexture stretch (share of the face's pixels whose photo texture is magnified > 2.5x in"
+          " area; median over renders) and the detectors on renders with little (< 10 %) or much"
+          " (>= 10 %) of it, by |yaw| band (all splits):")
+    print("  |yaw|  median share | little: n  dlib   mp  mp51 px% | much: n  dlib   mp  mp51 px%")
+    inner = np.arange(17, 68)
+    for lo, hi in YAW_BANDS:
+        b = [r for r in recs if lo <= abs(r["truth"]["yaw"]) < hi
+             and r["texture_stretch"]["share_over_2_5"] is not None]
+        if not b:
+            continue
+        med = np.median([r["texture_stretch"]["share_over_2_5"] for r in b])
+        cells = []
+        for part in ([r for r in b if r["texture_stretch"]["share_over_2_5"] < 0.1],
+                     [r for r in b if r["texture_stretch"]["share_over_2_5"] >= 0.1]):
+            if not part:
+                cells.append(f"{0:5d}     -     -       -")
+                continue
+            dr = 100 * np.mean([r["dlib"] is not None for r in part])
+            mr = 100 * np.mean([r["mediapipe"] is not None for r in part])
+            errs = []
+            for r in part:
+                if r["mediapipe"] is None:
+                    continue
+                o = np.array(r["oracle"]["ibug68"])
+                vis = np.array([c == "1" for c in r["oracle"]["visible"]])
+                vis[:17] = False
+                if not vis.any():
+                    continue
+                size = np.sqrt(np.prod(o.max(0) - o.min(0)))
+                W, H = r["image_size"]
+                d = np.linalg.norm(mp_ibug(r["mediapipe"], W, H, ibug_ix_of) - o, axis=1)
+                errs.append(100 * d[vis].mean() / size)
+            e = f"{np.mean(errs):7.1f}" if errs else "      -"
+            cells.append(f"{len(part):5d} {dr:5.0f} {mr:5.0f} {e}")
+        print(f"  {lo:2d}-{min(hi, 90):2d}  {100 * med:8.1f} %  | {cells[0]}   | {cells[1]}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--wheel", required=True, help="insightface wheel (its bundled images)")
@@ -558,6 +602,7 @@ def main():
     write_fixtures(bench, ids, args)
     contact_sheet(bench, args.sheet)
     report(bench, bench.canonical[2])
+    stretch_report(bench, bench.canonical[2])
     print(f"\nrenders {len(bench.records)}; time {time.time() - t0:.0f} s (render "
           f"{bench.t_render:.0f} s, detectors {bench.t_detect:.0f} s)")
     if failures:
