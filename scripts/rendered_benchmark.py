@@ -49,7 +49,7 @@ def sample_camera(rng, kind, size, frac=None, offset=True):
     u0, v0 = W / 2 + dx, H * 0.45 + dy
     if kind == "ortho":
         return rr.Camera("ortho", W, H, s=s, t=[u0, v0])
-    fov = rng.uniform(35, 70)
+    fov = rng.uniform(30, 60)
     fy = (H / 2) / np.tan(np.radians(fov) / 2)
     d = fy / s
     cx, cy = W / 2, H / 2
@@ -149,6 +149,11 @@ class Bench:
         img, R, o_uv, vis = self.render(idt, gname, pose, cam, deg, rng_bg, background)
         dres, mres, up = self.detect(img)
         pitch, yaw, roll = rr.pose_para_angles(R)
+        # the floor of a weak-perspective estimate: the render's own 68 3D points fitted to its
+        # oracle points (0 on orthographic renders)
+        X68 = rh.ibug_points(idt.geometries[gname]["V"], idt.ibug_ix)
+        _, Rw, _ = rh.weak_perspective(X68, np.stack([o_uv[:, 0], -o_uv[:, 1]], 1))
+        wp_err = rot_angle(Rw, R)
         deg_out = {k: v for k, v in deg.items() if k != "noise_seed"}
         rec = {
             "id": meta["id"], "set": meta["set"], "identity": idt.name, "split": idt.split,
@@ -159,7 +164,8 @@ class Bench:
             "trajectory": meta.get("trajectory"), "degradation": deg_out,
             "texture_stretch": self.last_stretch,
             "oracle": {"ibug68": [r2(p) for p in o_uv],
-                       "visible": "".join("1" if v else "0" for v in vis)},
+                       "visible": "".join("1" if v else "0" for v in vis),
+                       "weak_perspective_deg": round(wp_err, 3)},
             "dlib": None if dres is None else dict(dres, upsample=up),
             "dlib_upsample": up,
             "mediapipe": mres,
@@ -417,7 +423,10 @@ def write_fixtures(bench, ids, args):
              "bfm_coefficients": r2(i.bfm_coef, 3),
              "photo_dlib68_px": [r2(p) for p in i.dlib68],
              "photo_mediapipe478_px": [r2(p) for p in i.mp478],
-             "head": {g: i.geometries[g]["info"] for g in i.geometries}}
+             "head": {g: i.geometries[g]["info"] for g in i.geometries},
+             "ibug68_model_mm": {g: [r2(p, 3) for p in
+                                     rh.ibug_points(i.geometries[g]["V"], i.ibug_ix)]
+                                 for g in i.geometries}}
             for i in ids
         ],
         "files": [{"file": os.path.basename(p), "records": n} for p, n, _ in written],
@@ -536,6 +545,32 @@ def report(bench, ibug_ix_of):
                   f" | {f('d51r')} {f('m51r')}")
 
 
+def rot_angle(A, B):
+    return float(np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1, 1))))
+
+
+def oracle_report(bench, ids, failures):
+    """The truth against the oracle: a weak-perspective fit of each render's own 68 3D points
+    (identities.json ibug68_model_mm) to its oracle points must give back the truth rotation
+    (exactly on orthographic renders; on perspective ones, the weak-perspective approximation)."""
+    X = {(i.name, g): rh.ibug_points(i.geometries[g]["V"], i.ibug_ix)
+         for i in ids for g in i.geometries}
+    errs = {"ortho": [], "perspective": []}
+    for r in bench.records:
+        o = np.array(r["oracle"]["ibug68"])
+        s_, R, t_ = rh.weak_perspective(X[(r["identity"], r["geometry"])],
+                                        np.stack([o[:, 0], -o[:, 1]], 1))
+        errs[r["camera"]["kind"]].append(rot_angle(R, np.array(r["truth"]["rotation"])))
+    print("\ntruth vs oracle: rotation of a weak-perspective fit of the render's own 68 3D points"
+          " to its oracle points, angle to the truth rotation (deg):")
+    for k, e in errs.items():
+        if e:
+            print(f"  {k:11s} n {len(e):5d}  mean {np.mean(e):6.3f}  median {np.median(e):6.3f}"
+                  f"  max {np.max(e):6.3f}")
+    if errs["ortho"] and np.max(errs["ortho"]) > 0.5:
+        failures.append("truth vs oracle on orthographic renders")
+
+
 def stretch_report(bench, ibug_ix_of):
     recs = [r for r in bench.records if r["set"] != "identity"]
     print("\ntexture stretch (share of the face's pixels whose photo texture is magnified > 2.5x in"
@@ -611,6 +646,7 @@ def main():
     contact_sheet(bench, args.sheet)
     report(bench, bench.canonical[2])
     stretch_report(bench, bench.canonical[2])
+    oracle_report(bench, ids, failures)
     print(f"\nrenders {len(bench.records)}; time {time.time() - t0:.0f} s (render "
           f"{bench.t_render:.0f} s, detectors {bench.t_detect:.0f} s)")
     if failures:
