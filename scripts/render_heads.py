@@ -351,9 +351,59 @@ def pose_vertices(V, wts, pivot, pitch, yaw, roll):
     return out + pivot @ R.T, R
 
 
+# ---------------------------------------------------------------- occlusion in the photo
+def mirror_index(can_V):
+    """For each canonical vertex, its mirror image (x -> -x) in the symmetric canonical mesh."""
+    M = can_V * np.array([-1.0, 1.0, 1.0])
+    return ((can_V[:, None] - M[None]) ** 2).sum(2).argmin(1)
+
+
+def symmetric_uv(face_V, face_tris, face_uv, photo_cam, mirror):
+    """Soft symmetry for the photo's blind spots (as in face frontalization): per face vertex, the
+    texture coordinates of its mirror image (x -> -x) and a blending weight (0 = the photo's own
+    pixels, 1 = the mirror side's). The weight is 1 where the photo does not see the vertex
+    (behind the nose, beyond the far cheek's silhouette) but sees its mirror image, grows where
+    the photo sees the vertex at a grazing angle and its mirror image more squarely, and is
+    smoothed over the mesh so that the two textures blend without a seam. Without this, a face
+    turned in the photo shows its nose again on the far cheek when the render turns it back.
+    Returns (mirror uv, weights)."""
+    s_ph, R_ph, t_ph = photo_cam
+    Xr = face_V @ R_ph.T
+    uv = np.stack([s_ph * Xr[:, 0] + t_ph[0], -(s_ph * Xr[:, 1] + t_ph[1])], 1)
+    uv = uv - (uv.min(0) - 2)
+    W, H = (np.ceil(uv.max(0)) + 2).astype(int)
+    pix, tri, L = rr.rasterize(uv, Xr[:, 2], np.ones(len(Xr)), face_tris, int(W), int(H))
+    zb = rr.zbuffer_depth(pix, tri, L, Xr[:, 2], face_tris, int(W), int(H))
+    vis = rr.visible(uv, Xr[:, 2], zb, tol=2.0)  # mm
+    f = rr.vertex_normals(Xr, face_tris)[:, 2]
+    m = mirror
+    hard = ~vis & vis[m]
+    w = np.clip((f[m] - f - 0.1) / 0.4, 0, 1) * np.clip((0.55 - f) / 0.3, 0, 1)
+    w = np.maximum(w, hard.astype(float))
+    # smoothing over the mesh's edges
+    nb = np.concatenate([face_tris[:, [0, 1]], face_tris[:, [1, 2]], face_tris[:, [2, 0]]])
+    nb = np.concatenate([nb, nb[:, ::-1]])
+    deg = np.bincount(nb[:, 0], minlength=len(face_V)).astype(float)
+    for _ in range(4):
+        acc = np.bincount(nb[:, 0], weights=w[nb[:, 1]], minlength=len(face_V))
+        w = 0.5 * w + 0.5 * acc / np.maximum(deg, 1)
+        w[hard] = np.maximum(w[hard], 0.9)
+    return face_uv[m], w
+
+
 # ---------------------------------------------------------------- identities
 class Identity:
     pass
+
+
+def with_mirror(uv, face_uv2, w):
+    """(uv2, weights) over all head vertices: the mirror side's texture coordinates on the face,
+    the own ones (weight 0) elsewhere."""
+    uv2 = uv.copy()
+    uv2[: len(face_uv2)] = face_uv2
+    ww = np.zeros(len(uv))
+    ww[: len(w)] = w
+    return uv2, ww
 
 
 def make_identity(name, texture, dl, fm, canonical, bfm):
@@ -392,6 +442,8 @@ def make_identity(name, texture, dl, fm, canonical, bfm):
     Vb = warp(Vs)
     idt.photo_pose_b = R
     geo_b = build_head(Vb, can_T, face_uv, (s, R, t))
+    mirror = mirror_index(can_V)
+    uv2_b, w_b = symmetric_uv(Vb, can_T, face_uv, (s, R, t), mirror)
 
     # (a) MediaPipe's own 3D points: pixels, y up, z towards the camera (MediaPipe's z grows away).
     Xa = np.stack([mp[:468, 0] * TEX, -mp[:468, 1] * TEX, -mp[:468, 2] * TEX], 1)
@@ -402,11 +454,13 @@ def make_identity(name, texture, dl, fm, canonical, bfm):
     tph = -(ta @ Ra)[:2] / sa
     idt.photo_pose_a = Rph
     geo_a = build_head(Va, can_T, face_uv, (1 / sa, Rph, tph))
+    uv2_a, w_a = symmetric_uv(Va, can_T, face_uv, (1 / sa, Rph, tph), mirror)
     idt.geometries = {
         "mediapipe": dict(V=geo_a[0], T=geo_a[1], uv=geo_a[2], info=geo_a[3], wts=geo_a[4],
-                          pivot=geo_a[5], photo_cam=(1 / sa, Rph, tph)),
+                          pivot=geo_a[5], photo_cam=(1 / sa, Rph, tph),
+                          sym=with_mirror(geo_a[2], uv2_a, w_a)),
         "bfm": dict(V=geo_b[0], T=geo_b[1], uv=geo_b[2], info=geo_b[3], wts=geo_b[4],
-                    pivot=geo_b[5], photo_cam=(s, R, t)),
+                    pivot=geo_b[5], photo_cam=(s, R, t), sym=with_mirror(geo_b[2], uv2_b, w_b)),
     }
     idt.ibug_ix = ibug_ix
     idt.iod_px = float(np.linalg.norm(idt.dlib68[36:42].mean(0) - idt.dlib68[42:48].mean(0)))

@@ -139,7 +139,16 @@ def zbuffer_depth(pix, tri, L, depth, tris, width, height):
     return zb.reshape(height, width)
 
 
-def render(Xr, tris, tex_uv, texture, cam, background, light=None, cull=True):
+def sample(texture, pix, t_uv, W, H):
+    mapx = np.full(W * H, -10.0, np.float32)
+    mapy = np.full(W * H, -10.0, np.float32)
+    mapx[pix] = t_uv[:, 0] - 0.5
+    mapy[pix] = t_uv[:, 1] - 0.5
+    return cv2.remap(texture, mapx.reshape(H, W), mapy.reshape(H, W), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+
+
+def render(Xr, tris, tex_uv, texture, cam, background, light=None, cull=True, sym=None):
     """Renders the textured mesh, its vertices already posed (Xr, model frame turned). `light`: None (texture as is) or a dict with
     `dir` (unit vector, camera frame, towards the light), `ambient`, `gain` (3,) colour gain.
     Returns (image uint8 HxWx3, mask float HxW, uv (N, 2) of every vertex, depth (N,),
@@ -148,12 +157,18 @@ def render(Xr, tris, tex_uv, texture, cam, background, light=None, cull=True):
     uv, depth, w = cam.project(Xr)
     pix, tri, L = rasterize(uv, depth, w, tris, W, H, cull=cull)
     t_uv = (L[:, :, None] * tex_uv[tris[tri]]).sum(1)
-    mapx = np.full(W * H, -10.0, np.float32)
-    mapy = np.full(W * H, -10.0, np.float32)
-    mapx[pix] = t_uv[:, 0] - 0.5
-    mapy[pix] = t_uv[:, 1] - 0.5
-    col = cv2.remap(texture, mapx.reshape(H, W), mapy.reshape(H, W), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE).astype(np.float32)
+    col = sample(texture, pix, t_uv, W, H)
+    if sym is not None:
+        # soft symmetry: blend in the mirror side's texture where the photo was blind
+        uv2, wv = sym
+        a = (L * wv[tris[tri]]).sum(1)
+        k = a > 1e-3
+        if k.any():
+            col2 = sample(texture, pix[k], (L[k, :, None] * uv2[tris[tri[k]]]).sum(1), W, H)
+            al = np.zeros(W * H, np.float32)
+            al[pix[k]] = a[k]
+            al = al.reshape(H, W, 1)
+            col = (1 - al) * col + al * col2
     if light is not None:
         n = vertex_normals(Xr, tris)
         pn = (L[:, :, None] * n[tris[tri]]).sum(1)
@@ -204,8 +219,10 @@ def stretch_stats(uv, tex_uv, tris, counts, ref):
 
 
 def visible(points_uv, points_depth, zb, tol):
-    """Visibility of points by the z-buffer: inside the image and not behind the surface by more
-    than `tol` (depth units, mm)."""
+    """Visibility of points by the z-buffer: inside the image, and somewhere in the 3x3 pixels
+    around the point the surface drawn is not in front of it by more than `tol` (depth units, mm)
+    or nothing is drawn. (The nearest drawn depth of the window would call points on steep
+    slopes, like the sides of the nose, hidden.)"""
     H, W = zb.shape
     out = np.zeros(len(points_uv), bool)
     for k, ((u, v), z) in enumerate(zip(points_uv, points_depth)):
@@ -213,8 +230,7 @@ def visible(points_uv, points_depth, zb, tol):
         if not (0 <= i < W and 0 <= j < H):
             continue
         win = zb[max(j - 1, 0): j + 2, max(i - 1, 0): i + 2]
-        front = win[np.isfinite(win)]
-        out[k] = front.size > 0 and z >= front.max() - tol
+        out[k] = bool((win <= z + tol).any())  # -inf (nothing drawn) counts as not in front
     return out
 
 

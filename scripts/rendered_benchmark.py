@@ -131,7 +131,7 @@ class Bench:
         Xr, R = rh.pose_vertices(g["V"], g["wts"], g["pivot"], *pose)
         bg = rr.background(rng_bg, cam.width, cam.height) if background is None else background
         img, mask, uv, depth, zb, counts = rr.render(Xr, g["T"], g["uv"], idt.texture, cam, bg,
-                                                     light=deg.get("light"))
+                                                     light=deg.get("light"), sym=g["sym"])
         nf = len(self.canonical[1])  # the face's triangles come first
         s_render = cam.s if cam.kind == "ortho" else cam.fy / -cam.T[2]
         self.last_stretch = rr.stretch_stats(uv, g["uv"], g["T"][:nf], counts[:nf],
