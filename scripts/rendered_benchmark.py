@@ -234,10 +234,13 @@ def sanity_checks(bench, ids, failures):
                 mm = np.linalg.norm(np.array(rec["mediapipe"]["landmarks"]) * rh.TEX
                                     - idt.mp478, axis=1)
                 msg += (f"; detectors render vs photo: dlib68 mean {dd.mean():.1f} px (max "
-                        f"{dd.max():.1f}), MediaPipe478 mean {mm.mean():.1f} px (max "
-                        f"{mm.max():.1f}); IOD {idt.iod_px:.0f} px")
-                # a twentieth of the inter-ocular distance on average
-                ok &= dd.mean() < 0.1 * idt.iod_px and mm.mean() < 0.1 * idt.iod_px
+                        f"{dd.max():.1f}, inner 51 {dd[17:].mean():.1f}), MediaPipe478 mean "
+                        f"{mm.mean():.1f} px (max {mm.max():.1f}); IOD {idt.iod_px:.0f} px")
+                # A tenth of the inter-ocular distance on average. dlib's on its inner 51 points:
+                # its jaw follows the contour against what surrounds the head, which the render
+                # replaces (t1#4, IOD 41 px: 0.3/255 from the photo in the face, dlib's 68 4.6 px
+                # off on average, its inner 51 less).
+                ok &= dd[17:].mean() < 0.1 * idt.iod_px and mm.mean() < 0.1 * idt.iod_px
             print(msg + ("" if ok else "  FAIL"))
             if not ok:
                 failures.append(f"identity render {idt.name} {gname}")
@@ -492,8 +495,8 @@ def contact_sheet(bench, path, cols=6, cell=256):
     print(f"  wrote {path} ({os.path.getsize(path) / 1024:.0f} KiB, {len(picks)} renders)")
 
 
-def report(bench, ibug_ix_of):
-    recs = [r for r in bench.records if r["set"] != "identity"]
+def report(records, ibug_ix_of):
+    recs = [r for r in records if r["set"] != "identity"]
     print(f"\n== report: {len(recs)} renders (grid, random, trajectories; identity renders left"
           " out)")
     inner = np.arange(17, 68)
@@ -549,30 +552,54 @@ def rot_angle(A, B):
     return float(np.degrees(np.arccos(np.clip((np.trace(A.T @ B) - 1) / 2, -1, 1))))
 
 
-def oracle_report(bench, ids, failures):
-    """The truth against the oracle: a weak-perspective fit of each render's own 68 3D points
-    (identities.json ibug68_model_mm) to its oracle points must give back the truth rotation
-    (exactly on orthographic renders; on perspective ones, the weak-perspective approximation)."""
-    X = {(i.name, g): rh.ibug_points(i.geometries[g]["V"], i.ibug_ix)
-         for i in ids for g in i.geometries}
-    errs = {"ortho": [], "perspective": []}
-    for r in bench.records:
-        o = np.array(r["oracle"]["ibug68"])
-        s_, R, t_ = rh.weak_perspective(X[(r["identity"], r["geometry"])],
-                                        np.stack([o[:, 0], -o[:, 1]], 1))
-        errs[r["camera"]["kind"]].append(rot_angle(R, np.array(r["truth"]["rotation"])))
+def oracle_report(records, failures):
+    """The truth against the oracle (each record's oracle.weak_perspective_deg): a
+    weak-perspective fit of the render's own 68 3D points to its oracle points must give back the
+    truth rotation exactly on orthographic renders; on perspective ones it shows the
+    weak-perspective approximation."""
     print("\ntruth vs oracle: rotation of a weak-perspective fit of the render's own 68 3D points"
           " to its oracle points, angle to the truth rotation (deg):")
-    for k, e in errs.items():
+    for kind in ("ortho", "perspective"):
+        e = [r["oracle"]["weak_perspective_deg"] for r in records if r["camera"]["kind"] == kind]
         if e:
-            print(f"  {k:11s} n {len(e):5d}  mean {np.mean(e):6.3f}  median {np.median(e):6.3f}"
+            print(f"  {kind:11s} n {len(e):5d}  mean {np.mean(e):6.3f}  median {np.median(e):6.3f}"
                   f"  max {np.max(e):6.3f}")
-    if errs["ortho"] and np.max(errs["ortho"]) > 0.5:
-        failures.append("truth vs oracle on orthographic renders")
+            if kind == "ortho" and np.max(e) > 0.5:
+                failures.append("truth vs oracle on orthographic renders")
 
 
-def stretch_report(bench, ibug_ix_of):
-    recs = [r for r in bench.records if r["set"] != "identity"]
+def roll_report(records, ibug_ix_of):
+    recs = [r for r in records if r["set"] != "identity"]
+    print("\nby |roll| (all splits, |yaw| < 45): detection rate and mean distance of the inner 51"
+          " points from the oracle (% of the face size):")
+    print("  |roll|     n   dlib     mp  dlib51 %   mp51 %")
+    for lo, hi in ((0, 15), (15, 30), (30, 46)):
+        b = [r for r in recs if lo <= abs(r["truth"]["roll"]) < hi and abs(r["truth"]["yaw"]) < 45]
+        if not b:
+            continue
+        dr = 100 * np.mean([r["dlib"] is not None for r in b])
+        mr = 100 * np.mean([r["mediapipe"] is not None for r in b])
+        e = {"d": [], "m": []}
+        for r in b:
+            o = np.array(r["oracle"]["ibug68"])
+            vis = np.array([c == "1" for c in r["oracle"]["visible"]])
+            vis[:17] = False
+            if not vis.any():
+                continue
+            size = np.sqrt(np.prod(o.max(0) - o.min(0)))
+            W, H = r["image_size"]
+            if r["dlib"]:
+                d = np.linalg.norm(np.array(r["dlib"]["ibug68"]) + 0.5 - o, axis=1)
+                e["d"].append(100 * d[vis].mean() / size)
+            if r["mediapipe"]:
+                d = np.linalg.norm(mp_ibug(r["mediapipe"], W, H, ibug_ix_of) - o, axis=1)
+                e["m"].append(100 * d[vis].mean() / size)
+        f = {k: (f"{np.mean(v):8.1f}" if v else "       -") for k, v in e.items()}
+        print(f"  {lo:2d}-{min(hi, 45):2d} {len(b):6d} {dr:5.0f}% {mr:5.0f}%  {f['d']}  {f['m']}")
+
+
+def stretch_report(records, ibug_ix_of):
+    recs = [r for r in records if r["set"] != "identity"]
     print("\ntexture stretch (share of the face's pixels whose photo texture is magnified > 2.5x in"
           " area; median over renders) and the detectors on renders with little (< 10 %) or much"
           " (>= 10 %) of it, by |yaw| band (all splits):")
@@ -610,6 +637,28 @@ def stretch_report(bench, ibug_ix_of):
         print(f"  {lo:2d}-{min(hi, 90):2d}  {100 * med:8.1f} %  | {cells[0]}   | {cells[1]}")
 
 
+def all_reports(records, ibug_ix_of, failures):
+    report(records, ibug_ix_of)
+    roll_report(records, ibug_ix_of)
+    stretch_report(records, ibug_ix_of)
+    oracle_report(records, failures)
+
+
+def report_only(args):
+    """The report again from the fixtures of a run (no rendering, no detectors)."""
+    import glob
+
+    records = []
+    for path in sorted(glob.glob(os.path.join(args.out, "*.jsonl.gz"))):
+        with gzip.open(path, "rt") as f:
+            records += [json.loads(line) for line in f]
+    ibug_ix = rh.load_canonical(args.data)[2]
+    failures = []
+    all_reports(records, ibug_ix, failures)
+    if failures:
+        sys.exit("FAILED: " + "; ".join(failures))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--wheel", required=True, help="insightface wheel (its bundled images)")
@@ -621,7 +670,11 @@ def main():
     ap.add_argument("--trajectories", type=int, default=6)
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--quick", action="store_true", help="a small run (3 identities)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="print the report from the fixtures in --out (no rendering)")
     args = ap.parse_args()
+    if args.report_only:
+        return report_only(args)
     t0 = time.time()
     bench = Bench(args)
     print("== identities")
@@ -644,9 +697,7 @@ def main():
     print("\n== outputs")
     write_fixtures(bench, ids, args)
     contact_sheet(bench, args.sheet)
-    report(bench, bench.canonical[2])
-    stretch_report(bench, bench.canonical[2])
-    oracle_report(bench, ids, failures)
+    all_reports(bench.records, bench.canonical[2], failures)
     print(f"\nrenders {len(bench.records)}; time {time.time() - t0:.0f} s (render "
           f"{bench.t_render:.0f} s, detectors {bench.t_detect:.0f} s)")
     if failures:
