@@ -20,9 +20,7 @@ Per identity (one face of a real photo shipped inside a package):
       the dense surface is in the bfm model frame and the truth is absolute.
 """
 
-import io
 import json
-import math
 import os
 import zipfile
 

@@ -8,6 +8,9 @@
 # docs/rendered-benchmark.png, prints sanity checks (non-zero exit if one fails) and a report.
 #
 #   scripts/rendered-benchmark.sh [--quick] [--seed N] [other options of rendered_benchmark.py]
+#   scripts/rendered-benchmark.sh --report-only     # the report again from the fixtures
+#
+# The full run takes about 10 minutes on 2 cores (one process, one thread per library).
 #
 # Makes (once) a venv in target/render-venv from PyPI: the pins of scripts/detector-landmarks.sh
 # (mediapipe 0.10.14, numpy 1.26.4, opencv-contrib-python, dlib-bin, face-recognition-models,
@@ -43,5 +46,5 @@ if [ -z "$WHEEL" ]; then
     WHEEL=$(ls "$WHEELS"/insightface-*.whl | head -n1)
 fi
 # One thread per library: the machine is shared, and the run is sequential anyway.
-export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
+export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 PYTHONDONTWRITEBYTECODE=1
 exec "$VENV/bin/python" scripts/rendered_benchmark.py --wheel "$WHEEL" --data "$DATA" "$@"
