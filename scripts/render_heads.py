@@ -6,8 +6,8 @@ Per identity (one face of a real photo shipped inside a package):
 - two geometries, each a head mesh in the model frame (x towards the subject's left, y up, z
   towards the camera, mm) whose first 468 vertices are MediaPipe's mesh (their texture
   coordinates are MediaPipe's points on the crop), followed by a shell beyond the face oval
-  (forehead, skull, sides and ears region, back of the head) and a neck with shoulders, textured
-  from the crop's pixels around the face:
+  (forehead, skull, sides, back of the head), two ears and a neck with shoulders, textured from
+  the crop's pixels around the face:
   (a) "mediapipe": MediaPipe's own 3D landmarks on the photo (pixels, z in the scale of x), turned
       into the model frame and scaled to mm by a similarity Procrustes fit of its ibug68 points to
       geometry (b)'s frontal 68 points: a real person's shape as MediaPipe sees it. Truth is
@@ -331,8 +331,49 @@ def build_head(face_V, face_tris, face_uv, photo_cam, rings=9):
     lv = np.repeat(np.array([1.0, 1.0, 0.85, 0.6, 0.35, 0.2, 0.2]), m)
     wts[nbase:] = lv
     pivot = np.array([0.0, chin - 20, nz])
+
+    # Ears: an elliptic disc on each side (56 x 28 mm), its front edge in the shell between the
+    # eye line and the nose base, its back edge standing ~7 mm off the head; both faces drawn.
+    # Textured by where the photo shows it; an ear the photo sees from behind (a turned photo's
+    # far ear) takes the other ear's pixels, mirrored.
+    y_e = 0.5 * (face_V[[33, 263], 1].mean() + face_V[2, 1])
+    z_f = c[2] + 10.0
+    phi_e = np.radians(15.0)
+    ry, rx = 28.0, 14.0
+    ke = 16
+    th = np.linspace(0, 2 * np.pi, ke, endpoint=False)
+    ears, ear_n = [], []
+    for sgn in (-1.0, 1.0):
+        q = 1 - ((y_e - c[1]) / b) ** 2 - ((z_f - c[2]) / cz) ** 2
+        x_f = sgn * (a * np.sqrt(max(q, 0.05)) - 3.0)
+        v_s = np.array([sgn * np.sin(phi_e), 0.0, -np.cos(phi_e)])
+        u_s = np.array([0.0, 1.0, 0.0])
+        ce = np.array([x_f, y_e, z_f]) + rx * v_s
+        ring = ce + ry * np.sin(th)[:, None] * u_s + rx * np.cos(th)[:, None] * v_s
+        nrm = np.cross(u_s, v_s)
+        nrm *= np.sign(nrm[0] * sgn)
+        ears.append(np.vstack([ce, ring]))
+        ear_n.append(nrm)
+    ebase = len(Vall)
+    etris = []
+    for e in range(2):
+        o = ebase + e * (ke + 1)
+        for k in range(ke):
+            t1 = [o, o + 1 + k, o + 1 + (k + 1) % ke]
+            etris += [t1, t1[::-1]]
+    ears_V = np.vstack(ears)
+    facing = [(R_ph @ nn)[2] for nn in ear_n]
+    ear_uv = [photo_uv(ears[0]), photo_uv(ears[1])]
+    for e in range(2):
+        if facing[e] < 0.05 and facing[1 - e] > facing[e]:
+            ear_uv[e] = ear_uv[1 - e]  # mirrored: ring k of one ear is ring k of the other
+    Vall = np.concatenate([Vall, ears_V])
+    uv = np.concatenate([uv, ear_uv[0], ear_uv[1]])
+    tris_all = np.concatenate([tris_all, np.array(etris)])
+    wts = np.concatenate([wts, np.ones(len(ears_V))])
     info = {"head_centre_mm": c.round(1).tolist(), "head_radii_mm": radii.round(1).tolist(),
-            "shell_vertices": int(rings * n + 1), "neck_vertices": int(len(neck))}
+            "shell_vertices": int(rings * n + 1), "neck_vertices": int(len(neck)),
+            "ear_vertices": int(len(ears_V))}
     return Vall, tris_all, uv, info, wts, pivot
 
 
