@@ -54,13 +54,20 @@ pub enum Error {
         limit: f64,
     },
 
-    /// A requested answer convention cannot be given (`geometry::convention`).
+    /// A requested answer convention cannot be given (`geometry::convention`). Boxed: its
+    /// messages' parts would double the size of every `Result` of the core.
     #[error(transparent)]
-    Convention(#[from] crate::geometry::convention::ConventionError),
+    Convention(Box<crate::geometry::convention::ConventionError>),
 
     /// An iterative solver failed to converge or a decomposition failed.
     #[error("numerical failure: {0}")]
     Numerical(String),
+}
+
+impl From<crate::geometry::convention::ConventionError> for Error {
+    fn from(e: crate::geometry::convention::ConventionError) -> Self {
+        Error::Convention(Box::new(e))
+    }
 }
 
 impl Error {
