@@ -119,7 +119,7 @@ pub struct VersionView {
     pub version: String,
     /// RFC 3339.
     pub created: String,
-    /// SHA-256 of its bundle, hex.
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
     /// The model's own scheme in that version.
     pub scheme: String,

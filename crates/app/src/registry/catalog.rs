@@ -18,7 +18,7 @@ pub struct VersionInfo {
     pub version: String,
     /// When it was created, RFC 3339.
     pub created: String,
-    /// SHA-256 of its bundle, hex.
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
     /// The model's own scheme in that version.
     pub scheme: String,

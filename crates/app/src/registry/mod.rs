@@ -75,7 +75,7 @@ pub struct ServedModel {
     pub version: String,
     /// RFC 3339.
     pub created: String,
-    /// SHA-256 of the bundle, hex.
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
     /// Its provenance: source files, the command that built it, notes.
     pub provenance: Provenance,

@@ -45,7 +45,7 @@ pub struct RawOptions {
     pub subsets: Option<Vec<String>>,
     /// Principal components of the shape basis (0: none).
     pub components: Option<usize>,
-    /// Seed of the training's random draws.
+    /// Seed of the validation views.
     pub seed: Option<u64>,
     /// Fewest usable shapes an upload needs.
     pub min_shapes: Option<usize>,

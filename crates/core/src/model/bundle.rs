@@ -217,7 +217,7 @@ pub struct Bundle {
     /// without one (left out of the JSON, so their checksums stay as they were).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<Calibration>,
-    /// SHA-256 of the bundle's content, hex.
+    /// `sha256:<hex>` of the compact JSON with an empty checksum field.
     pub checksum: String,
 }
 
