@@ -28,7 +28,7 @@ pub enum HprMethod {
     Katz {
         /// Camera distance, in radii of the shape.
         camera_distance: f64,
-        /// The spherical flipping's exponent.
+        /// `gamma` of the flipping radius `max ‖p - C‖ · 10^gamma`.
         gamma: f64,
     },
 }

@@ -55,7 +55,7 @@ use crate::shape::Shape2;
 /// by 16 components at a time (32 fill two groups), a system by tiles of 4 unknowns (6 + 14
 /// fill five).
 pub const DEFAULT_FIT_COMPONENTS: usize = 32;
-/// Principal components the robust fit moves by default.
+/// Principal components the robust step moves by default (see above).
 pub const DEFAULT_ROBUST_COMPONENTS: usize = 14;
 
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.

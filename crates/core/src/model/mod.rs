@@ -113,7 +113,7 @@ pub struct PoseModel {
     pub scheme: Scheme,
     /// Frontal mean shape, model frame, mm, centred.
     pub mean: Vec<Vector3<f64>>,
-    /// The hidden point removal used in training.
+    /// Hidden point removal on the mean shape's triangulation (the training views' visibility).
     pub hpr: PaperHpr,
     /// Which points are visible from which directions.
     pub visibility: VisibilityMap,

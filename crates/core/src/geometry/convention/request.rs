@@ -429,11 +429,11 @@ impl PoseInput<'_> {
 pub struct QuaternionAnswer {
     /// Scalar part, `w ≥ 0`.
     pub w: f64,
-    /// x component (model frame x axis).
+    /// Vector part, x.
     pub x: f64,
-    /// y component.
+    /// Vector part, y.
     pub y: f64,
-    /// z component.
+    /// Vector part, z.
     pub z: f64,
 }
 
