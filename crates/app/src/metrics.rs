@@ -333,8 +333,11 @@ type ModelRows = BTreeMap<String, (String, String, bool)>;
 /// What the metrics show of a served model (`facepose_model_info`).
 #[derive(Debug, Clone, Copy)]
 pub struct ModelInfo<'a> {
+    /// The model's name.
     pub name: &'a str,
+    /// The version served.
     pub version: &'a str,
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: &'a str,
 }
 
