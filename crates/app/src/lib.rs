@@ -72,7 +72,7 @@ pub struct Settings {
     pub models: Option<PathBuf>,
     /// The request limits.
     pub limits: Limits,
-    /// The admin token, if admin routes are enabled.
+    /// The admin token, if any (none: admin routes disabled).
     pub admin_token: AdminToken,
     /// Most retraining jobs queued beside the running one (`--max-queued-jobs`).
     pub max_queued_jobs: usize,
@@ -117,7 +117,7 @@ pub enum Readiness {
     /// Serving; `problems`: active versions of the models folder this replica cannot serve
     /// (the previous version serves meanwhile).
     Ready {
-        /// Problems, as above.
+        /// Active versions of the models folder this replica cannot serve.
         problems: Vec<SyncProblem>,
     },
     /// Shutting down: finishing the work in progress, taking no new work.

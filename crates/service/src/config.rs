@@ -186,7 +186,7 @@ pub struct Config {
     pub log_format: LogFormat,
     /// Log filter, tracing EnvFilter syntax (`--log`).
     pub log: String,
-    /// The admin token, if admin routes are enabled.
+    /// The admin token, if any (none: admin routes disabled).
     pub admin_token: AdminToken,
     /// Retraining jobs that may wait while one trains (`--max-queued-jobs`).
     pub max_queued_jobs: usize,
