@@ -128,11 +128,19 @@ pub enum ServiceError {
     /// drop.
     #[error("{message}")]
     TooFewShapes {
+        /// What is wrong, for the caller.
         message: String,
+        /// Every shape's fate.
         report: Box<ValidationReport>,
     },
     #[error("unknown model {name:?}; loaded models: {}", loaded.join(", "))]
-    UnknownModel { name: String, loaded: Vec<String> },
+    /// No loaded model has this name.
+    UnknownModel {
+        /// The name asked for.
+        name: String,
+        /// The loaded models' names.
+        loaded: Vec<String>,
+    },
     /// A scheme the model does not serve, asked for by name as a resource
     /// (`/v1/models/{name}/schemes/{scheme}`); in a pose request an unknown scheme is a value,
     /// `Invalid`.
@@ -141,8 +149,11 @@ pub enum ServiceError {
         served.join(", ")
     )]
     UnknownScheme {
+        /// The model asked for.
         model: String,
+        /// The scheme asked for.
         scheme: String,
+        /// The schemes the model serves.
         served: Vec<String>,
     },
     /// No such model folder entry.
@@ -150,7 +161,13 @@ pub enum ServiceError {
         "no model {name:?} in the models folder{}",
         if *has_folder { "" } else { " (the server has no models folder)" }
     )]
-    NotInFolder { name: String, has_folder: bool },
+    /// The models folder has no model of this name.
+    NotInFolder {
+        /// The name asked for.
+        name: String,
+        /// Whether the server has a models folder at all.
+        has_folder: bool,
+    },
     /// No such version; the message lists the versions there are.
     #[error("{0}")]
     UnknownVersion(String),
@@ -158,12 +175,19 @@ pub enum ServiceError {
         "unknown job {id:?}: no replica sharing this models folder has it (jobs are kept for an \
          hour after they end)"
     )]
-    UnknownJob { id: String },
+    /// No replica knows this job.
+    UnknownJob {
+        /// The job id asked for.
+        id: String,
+    },
+    /// The job cannot be cancelled any more.
     #[error("{}", not_cancellable(id, why))]
     NotCancellable {
+        /// The job's id.
         id: String,
         /// The job's model, whose versions say what a late job wrote.
         model: String,
+        /// Why it cannot be cancelled.
         why: NotCancellable,
     },
     /// The models folder's state forbids the change; the message says what to do.
@@ -173,15 +197,28 @@ pub enum ServiceError {
         "this server has no models folder, so it cannot store versions: start it with --models \
          DIR (a folder shared by every replica)"
     )]
+    /// A change to the models folder on a server without one.
     NoModelsFolder,
     #[error("{faces} faces in one request; the limit is {limit} (--max-batch): split the batch")]
-    BatchTooLarge { faces: usize, limit: usize },
+    /// More faces in one request than `--max-batch`.
+    BatchTooLarge {
+        /// Faces in the request.
+        faces: usize,
+        /// The limit.
+        limit: usize,
+    },
     /// A batch refused as it arrived, at face `at_least` (the rest was not read whole).
     #[error(
         "at least {at_least} faces in one request; the limit is {limit} (--max-batch): split the \
          batch"
     )]
-    BatchOverLimit { at_least: usize, limit: usize },
+    /// More faces than `--max-batch`, found before the whole request was read.
+    BatchOverLimit {
+        /// Faces counted so far.
+        at_least: usize,
+        /// The limit.
+        limit: usize,
+    },
     /// A request body, message or upload over its limit.
     #[error("{}", too_large(what, *size, *limit, flag, hint))]
     TooLarge {
@@ -189,6 +226,7 @@ pub enum ServiceError {
         what: &'static str,
         /// Its size when known.
         size: Option<u64>,
+        /// The limit, bytes.
         limit: usize,
         /// The flag that sets the limit.
         flag: &'static str,
@@ -196,32 +234,58 @@ pub enum ServiceError {
         hint: &'static str,
     },
     #[error("server busy: {limit} requests already in progress; retry with backoff")]
-    Overloaded { limit: usize },
+    /// Every request slot (`--max-concurrency`) is taken.
+    Overloaded {
+        /// Requests in progress at most.
+        limit: usize,
+    },
     #[error("server busy: {limit} streams already open (--max-streams); retry with backoff")]
-    StreamsBusy { limit: usize },
+    /// Every stream slot (`--max-streams`) is taken.
+    StreamsBusy {
+        /// Streams open at most.
+        limit: usize,
+    },
     #[error(
         "{} retraining jobs are queued or running (--max-queued-jobs {max_queued}); retry later",
         max_queued.saturating_add(1)
     )]
-    QueueFull { max_queued: usize },
+    /// The retraining queue is full.
+    QueueFull {
+        /// `--max-queued-jobs`.
+        max_queued: usize,
+    },
     #[error("request took longer than {limit:?} (--request-timeout); send smaller batches")]
-    Timeout { limit: Duration },
+    /// The request outran `--request-timeout`.
+    Timeout {
+        /// The timeout.
+        limit: Duration,
+    },
     #[error(
         "the upload took longer than {limit:?} to arrive and be checked (--upload-timeout); send \
          fewer shapes per upload or from closer to the server"
     )]
-    UploadTimeout { limit: Duration },
+    /// The upload outran `--upload-timeout`.
+    UploadTimeout {
+        /// The timeout.
+        limit: Duration,
+    },
     /// A change of the models folder that outlived the request; it completes in the background.
     #[error(
         "the change took longer than {limit:?} (--request-timeout) and goes on in the background"
     )]
-    ChangeTimedOut { limit: Duration },
+    /// A change outran `--request-timeout`; it goes on in the background.
+    ChangeTimedOut {
+        /// The timeout.
+        limit: Duration,
+    },
     #[error("server shutting down; retry, possibly on another replica")]
+    /// The server is draining.
     ShuttingDown,
     #[error(
         "admin routes are disabled on this server: start it with FACEPOSE_ADMIN_TOKEN or \
          --admin-token-file to enable retraining, activation and deletion"
     )]
+    /// An admin route on a server without an admin token.
     AdminDisabled,
     #[error("{}", match .0 {
         Unauthenticated::Missing => "missing admin token: send Authorization: Bearer <token>",
@@ -229,8 +293,10 @@ pub enum ServiceError {
         Unauthenticated::WrongToken => "invalid admin token",
         Unauthenticated::Repeated => "send one Authorization header: this request has several",
     })]
+    /// An admin route without the right token.
     Unauthenticated(Unauthenticated),
     #[error("{0}")]
+    /// A failure of the server itself (the message says what).
     Internal(String),
 }
 

@@ -46,7 +46,9 @@ fn count(tally: &mut FaceTally, outcome: &FaceOutcome) {
 
 /// A pose with the model that made it.
 pub struct Answer {
+    /// The face's pose.
     pub pose: FacePose,
+    /// The model that made it.
     pub model: Arc<ServedModel>,
 }
 
@@ -60,6 +62,7 @@ pub const INLINE_BYTES: usize = 16 * 1024;
 /// How big a batch is, as its transport knows it before decoding: where it runs follows.
 #[derive(Debug, Clone, Copy)]
 pub enum BatchSize {
+    /// The number of faces.
     Faces(usize),
     /// The encoded request, for a transport that decodes inside the use case.
     Bytes(usize),
@@ -242,14 +245,18 @@ pub struct Frame<F> {
     pub timestamp_us: i64,
     /// A change of the smoothing (`Some(None)`: off), which restarts every track's filter.
     pub smoothing: Option<Option<Filter>>,
+    /// The faces, as the transport decoded them.
     pub faces: Vec<F>,
 }
 
 /// One frame's answer: each face's result in order, and the model that made them (its name as
 /// asked and no version when it is not served: every face then carries that error).
 pub struct FrameAnswer<R> {
+    /// The model's name, as asked.
     pub model: String,
+    /// The version that answered (empty when the model is not served).
     pub model_version: String,
+    /// Each face's result, in order.
     pub faces: Vec<R>,
 }
 

@@ -53,12 +53,15 @@ pub struct Limits {
     pub max_batch: usize,
     /// Largest request body (HTTP) or message (gRPC), bytes.
     pub max_body: usize,
+    /// Longest a request may take (`--request-timeout`).
     pub request_timeout: Duration,
     /// Most requests (HTTP API, gRPC unary calls) in progress.
     pub max_concurrency: usize,
+    /// Most streams open at once.
     pub max_streams: usize,
     /// Largest retraining upload, bytes.
     pub max_upload: usize,
+    /// Longest an upload may take to arrive and be checked (`--upload-timeout`).
     pub upload_timeout: Duration,
 }
 
@@ -67,8 +70,11 @@ pub struct Limits {
 pub struct Settings {
     /// The models folder; `None`: the embedded default model only.
     pub models: Option<PathBuf>,
+    /// The request limits.
     pub limits: Limits,
+    /// The admin token, if any (none: admin routes disabled).
     pub admin_token: AdminToken,
+    /// Most retraining jobs queued beside the running one (`--max-queued-jobs`).
     pub max_queued_jobs: usize,
     /// How often the models folder's pointers are read.
     pub registry_poll: Duration,
@@ -81,10 +87,15 @@ pub struct Settings {
 /// One server's state and its use cases.
 #[derive(Debug)]
 pub struct App {
+    /// The served models.
     pub registry: Arc<Registry>,
+    /// The retraining jobs.
     pub jobs: Arc<Jobs>,
+    /// The request limits.
     pub limits: Limits,
+    /// Readiness and draining.
     pub lifecycle: Lifecycle,
+    /// The server's metrics.
     pub metrics: Metrics,
     admin: AdminToken,
     /// `--keep-inactive-versions` (`None`: all).
@@ -106,8 +117,10 @@ pub enum Readiness {
     /// Serving; `problems`: active versions of the models folder this replica cannot serve
     /// (the previous version serves meanwhile).
     Ready {
+        /// Active versions of the models folder this replica cannot serve.
         problems: Vec<SyncProblem>,
     },
+    /// Shutting down: finishing the work in progress, taking no new work.
     Draining,
 }
 

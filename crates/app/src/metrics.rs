@@ -39,11 +39,14 @@ const BUCKETS: [f64; 17] = [
 /// The transport a face came through, a label of the per-face metrics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Transport {
+    /// HTTP.
     Http,
+    /// gRPC.
     Grpc,
 }
 
 impl Transport {
+    /// The transport's label value.
     pub fn name(self) -> &'static str {
         match self {
             Transport::Http => "http",
@@ -132,6 +135,7 @@ impl Metrics {
         }
     }
 
+    /// A gRPC call's latency.
     pub fn grpc_latency(&self, rpc: &'static str, elapsed: Duration) {
         self.with(|| {
             histogram!("facepose_grpc_request_duration_seconds", "rpc" => rpc)
@@ -156,10 +160,12 @@ impl Metrics {
         });
     }
 
+    /// A stream opened.
     pub fn stream_opened(&self) {
         self.with(|| gauge!("facepose_streams_active").increment(1.0));
     }
 
+    /// A stream closed.
     pub fn stream_closed(&self) {
         self.with(|| gauge!("facepose_streams_active").decrement(1.0));
     }
@@ -169,6 +175,7 @@ impl Metrics {
         self.with(|| counter!("facepose_connections_aged_total").increment(1));
     }
 
+    /// Whether the server is ready (the `facepose_ready` gauge).
     pub fn ready(&self, on: bool) {
         self.with(|| gauge!("facepose_ready").set(if on { 1.0 } else { 0.0 }));
     }
@@ -204,10 +211,12 @@ impl Metrics {
         self.with(|| gauge!("facepose_model_sync_problems").set(n as f64));
     }
 
+    /// A retraining job ended with `outcome`.
     pub fn retrain_job_finished(&self, outcome: &'static str) {
         self.with(|| counter!("facepose_retrain_jobs_total", "outcome" => outcome).increment(1));
     }
 
+    /// Retraining jobs queued or running.
     pub fn retrain_jobs_waiting(&self, n: usize) {
         self.with(|| gauge!("facepose_retrain_jobs_waiting").set(n as f64));
     }
@@ -277,6 +286,7 @@ pub struct FaceTally {
 }
 
 impl FaceTally {
+    /// A face answered by method `m`.
     pub fn ok(&mut self, m: Method) {
         self.by_method[m.index()] += 1;
     }
@@ -290,10 +300,12 @@ impl FaceTally {
         }
     }
 
+    /// Faces answered.
     pub fn succeeded(&self) -> u64 {
         self.by_method.iter().sum()
     }
 
+    /// Faces that failed.
     pub fn failed(&self) -> u64 {
         self.by_error.iter().map(|(_, n)| n).sum()
     }
@@ -321,8 +333,11 @@ type ModelRows = BTreeMap<String, (String, String, bool)>;
 /// What the metrics show of a served model (`facepose_model_info`).
 #[derive(Debug, Clone, Copy)]
 pub struct ModelInfo<'a> {
+    /// The model's name.
     pub name: &'a str,
+    /// The version served.
     pub version: &'a str,
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: &'a str,
 }
 

@@ -15,9 +15,13 @@ use facepose_records::{ConventionsRecord, PoseRecord};
 /// One face as a transport hands it over. Empty strings mean "not given".
 #[derive(Debug, Clone, Default)]
 pub struct FaceSpec<'a> {
+    /// The landmarks, image pixels (y down); `None` for a missing point.
     pub landmarks: &'a [Option<[f64; 2]>],
+    /// The scheme's name.
     pub scheme: Option<&'a str>,
+    /// The method's name.
     pub method: Option<&'a str>,
+    /// Camera intrinsics, for the perspective refinement.
     pub camera: Option<Intrinsics>,
     /// `projected` (default) or `contour`: see [`LandmarkStyle`].
     pub style: Option<&'a str>,
@@ -33,11 +37,14 @@ pub struct FaceSpec<'a> {
 /// scheme it was made in.
 #[derive(Debug, Clone)]
 pub struct FacePose {
+    /// The record the transports encode.
     pub record: PoseRecord,
+    /// The estimated rotation.
     pub rotation: facepose_core::geometry::Rotation,
     /// The covariance of the rotation's small turn (radians²), when the answer has an
     /// uncertainty: what the stream's Kalman filter weighs the frame by.
     pub turn_cov: Option<facepose_core::geometry::TurnCovariance>,
+    /// The scheme the estimate was made in.
     pub scheme: String,
 }
 

@@ -27,7 +27,9 @@ pub const DEFAULT_DT: f64 = 1.0 / 30.0;
 /// A stream's smoothing filter and its parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Filter {
+    /// A Kalman filter on the rotation.
     Kalman(KalmanParams),
+    /// A One Euro filter on the rotation.
     OneEuro(OneEuroParams),
 }
 

@@ -11,14 +11,18 @@ use crate::registry::{Catalog, ModelSet, ServedModel, StoredVersions};
 /// A scheme a model serves.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SchemeView {
+    /// The scheme's name.
     pub name: String,
+    /// Number of points.
     pub points: usize,
 }
 
 /// A served model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelView {
+    /// The model's name.
     pub name: String,
+    /// The version served.
     pub version: String,
     /// RFC 3339.
     pub created: String,
@@ -41,7 +45,9 @@ pub struct ModelView {
 /// A served model with its provenance.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelDetail {
+    /// The model.
     pub model: ModelView,
+    /// Its provenance: source files, the command that built it, notes.
     pub provenance: Provenance,
 }
 
@@ -51,6 +57,7 @@ pub struct ModelDetail {
 pub struct SchemeDetail {
     /// The model's name and the version that answered.
     pub model: String,
+    /// The version that answered.
     pub model_version: String,
     /// The scheme's name.
     pub name: String,
@@ -99,16 +106,20 @@ pub fn scheme_detail(m: &ServedModel, scheme: &str) -> Result<SchemeDetail, Serv
 /// Every served model.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ModelsView {
+    /// The model answering when a request names none.
     pub default_model: String,
+    /// The served models.
     pub models: Vec<ModelView>,
 }
 
 /// One version of a model in the models folder.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VersionView {
+    /// The version's id.
     pub version: String,
     /// RFC 3339.
     pub created: String,
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
     /// The model's own scheme in that version.
     pub scheme: String,
@@ -126,9 +137,11 @@ pub struct VersionView {
 /// A model folder entry's versions.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VersionsView {
+    /// The model folder's name.
     pub name: String,
     /// The folder's active version; `None` if none was ever activated.
     pub active: Option<String>,
+    /// Its versions on disk.
     pub versions: Vec<VersionView>,
 }
 

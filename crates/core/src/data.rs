@@ -19,7 +19,9 @@ fn to_vectors(points: &[[f64; 3]]) -> Vec<Vector3<f64>> {
 /// A set of 3D shapes in one scheme (`population_*.json`).
 #[derive(Debug, Clone)]
 pub struct Population {
+    /// The landmark scheme's name.
     pub scheme: String,
+    /// The shapes: one point per scheme point, model frame, mm.
     pub shapes: Vec<Vec<Vector3<f64>>>,
 }
 
@@ -60,7 +62,9 @@ pub fn parse_morphable_model(text: &str) -> Result<MorphableModel, String> {
 /// MediaPipe's canonical face mesh with the ibug68 mapping.
 #[derive(Debug, Clone)]
 pub struct CanonicalMesh {
+    /// Mesh vertices, model frame.
     pub vertices: Vec<Vector3<f64>>,
+    /// Triangles, as vertex indices.
     pub triangles: Vec<[usize; 3]>,
     /// ibug68 point i = mean of these mesh vertices.
     pub ibug68: Vec<Vec<usize>>,
@@ -89,13 +93,21 @@ pub fn parse_canonical_mesh(text: &str) -> Result<CanonicalMesh, String> {
 /// One face of the AFLW2000-3D JSON Lines.
 #[derive(Debug, Clone, Deserialize)]
 pub struct AflwFace {
+    /// The image's file name.
     pub image: String,
+    /// True pitch, degrees (Pose_Para).
     pub pitch: f64,
+    /// True yaw, degrees (Pose_Para).
     pub yaw: f64,
+    /// True roll, degrees (Pose_Para).
     pub roll: f64,
+    /// True rotation matrix, row-major.
     pub rotation: [[f64; 3]; 3],
+    /// Whether every |angle| is at most 99° (the faces the evaluations use).
     pub within_99: bool,
+    /// The 68 fitted landmarks, image pixels (y down).
     pub landmarks_fitted: Vec<[f64; 2]>,
+    /// The 68 re-annotated landmarks, image pixels (y down).
     pub landmarks_reannotated: Vec<[f64; 2]>,
 }
 
@@ -122,7 +134,9 @@ pub struct SubjectViews {
 /// `{"scheme": "ibug68", "subjects": [{"id": ..., "views": [...]}, ...]}` for several.
 #[derive(Debug, Clone)]
 pub struct MultiViewSet {
+    /// The landmark scheme's name.
     pub scheme: String,
+    /// The subjects, each with its views.
     pub subjects: Vec<SubjectViews>,
 }
 

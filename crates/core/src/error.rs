@@ -8,21 +8,30 @@ use thiserror::Error;
 pub enum Error {
     /// A coordinate or parameter is NaN or infinite.
     #[error("{what} is not a finite number (NaN or infinity)")]
-    NonFinite { what: String },
+    NonFinite {
+        /// What was not finite.
+        what: String,
+    },
 
     /// Fewer usable points than the operation needs.
     #[error("{what}: needs at least {needed} points present, got {got}")]
     TooFewPoints {
+        /// What the points are for.
         what: String,
+        /// Points needed at least.
         needed: usize,
+        /// Points present.
         got: usize,
     },
 
     /// The number of points does not match the scheme or the other operand.
     #[error("{what}: expected {expected} points, got {got}")]
     PointCount {
+        /// What the points are for.
         what: String,
+        /// Points expected.
         expected: usize,
+        /// Points given.
         got: usize,
     },
 
@@ -32,11 +41,21 @@ pub enum Error {
 
     /// A parameter is outside its valid range.
     #[error("invalid parameter {name}: {reason}")]
-    InvalidParameter { name: String, reason: String },
+    InvalidParameter {
+        /// The parameter's name.
+        name: String,
+        /// Why it is invalid.
+        reason: String,
+    },
 
     /// A landmark scheme definition is inconsistent.
     #[error("invalid landmark scheme {scheme:?}: {reason}")]
-    InvalidScheme { scheme: String, reason: String },
+    InvalidScheme {
+        /// The scheme's name.
+        scheme: String,
+        /// What is inconsistent.
+        reason: String,
+    },
 
     /// The landmarks do not look like a face in their scheme: the best fit of the face leaves
     /// most of their spread unexplained (a wrong scheme, a wrong point order, or not a face).
@@ -49,8 +68,11 @@ pub enum Error {
         limit = limit * 100.0
     )]
     NotAFace {
+        /// The landmarks' scheme.
         scheme: String,
+        /// The share of the landmarks' spread the fit leaves unexplained (0 to 1).
         misfit: f64,
+        /// The share refused above (0 to 1).
         limit: f64,
     },
 

@@ -14,8 +14,11 @@ use crate::shape::Shape2;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "AngleRangeFields")]
 pub struct AngleRange {
+    /// First angle, degrees.
     pub min: f64,
+    /// Last angle, degrees (included when on the grid).
     pub max: f64,
+    /// Step, degrees.
     pub step: f64,
 }
 
@@ -88,8 +91,11 @@ impl AngleRange {
 /// The grid of poses to synthesize.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct PoseGrid {
+    /// Yaw angles, degrees.
     pub yaw: AngleRange,
+    /// Pitch angles, degrees.
     pub pitch: AngleRange,
+    /// Roll angles, degrees.
     pub roll: AngleRange,
 }
 
@@ -139,9 +145,13 @@ impl PoseGrid {
 /// translation: `u = (R X)_x`, `v = -(R X)_y`) and which points HPR finds visible.
 #[derive(Debug, Clone)]
 pub struct SyntheticView {
+    /// The view's pose, degrees (Pose_Para).
     pub angles: EulerAngles,
+    /// The view's rotation.
     pub rotation: Rotation3<f64>,
+    /// Projected points, image frame (y down).
     pub projected: Vec<Vector2<f64>>,
+    /// Per point, whether HPR finds it visible.
     pub visible: Vec<bool>,
 }
 

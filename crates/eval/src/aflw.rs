@@ -34,6 +34,7 @@ pub enum Source {
 }
 
 impl Source {
+    /// The sources of the benchmark tables (the diagnostic one left out).
     pub const ALL: [Source; 4] = [
         Source::Fitted,
         Source::Reannotated,
@@ -41,6 +42,7 @@ impl Source {
         Source::Dlib5,
     ];
 
+    /// The source's name in tables.
     pub fn name(self) -> &'static str {
         match self {
             Source::Fitted => "fitted",
@@ -58,17 +60,27 @@ pub const YAW_BINS: [(f64, f64); 3] = [(0.0, 30.0), (30.0, 60.0), (60.0, 99.0)];
 /// One row: a method on a source.
 #[derive(Debug, Clone, Serialize)]
 pub struct AflwRow {
+    /// The method.
     pub method: Method,
+    /// The landmark set sent.
     pub source: Source,
+    /// Faces evaluated.
     pub faces: usize,
+    /// Faces the method failed on (excluded from the errors).
     pub failures: usize,
+    /// Mean absolute pitch error, degrees.
     pub mae_pitch: f64,
+    /// Mean absolute yaw error, degrees.
     pub mae_yaw: f64,
+    /// Mean absolute roll error, degrees.
     pub mae_roll: f64,
+    /// Mean of the three mean absolute errors, degrees.
     pub mae_mean: f64,
+    /// Mean geodesic error (angle of `R_estimateᵀ R_true`), degrees.
     pub geodesic: f64,
     /// Mean of the three absolute errors per |yaw| bin (faces per bin alongside).
     pub mae_by_yaw: [f64; 3],
+    /// Faces per |yaw| bin.
     pub faces_by_yaw: [usize; 3],
     /// (|true yaw|, mean absolute error) per face, for plots.
     #[serde(skip)]
@@ -290,6 +302,7 @@ pub const GIMBAL_BINS: [(f64, f64); 4] = [(0.0, 30.0), (30.0, 60.0), (60.0, 80.0
 /// One |true yaw| bin of a row: how the Euler-angle error compares with the geodesic one.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GimbalBin {
+    /// Faces in the bin.
     pub faces: usize,
     /// Mean over the faces of the mean of the three absolute angle errors, degrees.
     pub mae: f64,
@@ -602,11 +615,17 @@ mod tests {
 /// figures behind the "does it look like a face" thresholds.
 #[derive(Debug, Clone, Serialize)]
 pub struct MisfitRow {
+    /// The landmark set sent.
     pub source: Source,
+    /// The method.
     pub method: Method,
+    /// Faces evaluated.
     pub faces: usize,
+    /// Median misfit.
     pub p50: f64,
+    /// 99th percentile of the misfit.
     pub p99: f64,
+    /// Largest misfit.
     pub max: f64,
     /// Faces whose answer carries a warning, or that were refused as not a face.
     pub flagged: usize,

@@ -25,7 +25,12 @@ pub enum HprMethod {
     /// The paper's steps with the depth test against the triangle's plane.
     PaperPlaneDepth,
     /// Katz-Tal-Basri spherical flipping with the given parameters.
-    Katz { camera_distance: f64, gamma: f64 },
+    Katz {
+        /// Camera distance, in radii of the shape.
+        camera_distance: f64,
+        /// `gamma` of the flipping radius `max ‖p - C‖ · 10^gamma`.
+        gamma: f64,
+    },
 }
 
 impl HprMethod {
@@ -47,8 +52,11 @@ pub const POINT_SETS: [&str; 3] = ["mesh468", "ibug68 (from 468)", "ibug68 (68 a
 /// One row of the table.
 #[derive(Debug, Clone, Serialize)]
 pub struct HprRow {
+    /// The point set's name.
     pub points: &'static str,
+    /// The method.
     pub method: HprMethod,
+    /// Its confusion counts against the ground truth.
     pub confusion: Confusion,
     /// Accuracy per |yaw| band: [0, 30), [30, 60), [60, 90].
     pub accuracy_by_yaw: [f64; 3],

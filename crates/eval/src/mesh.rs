@@ -35,6 +35,7 @@ pub struct MeshOptions {
     pub noise: Vec<f64>,
     /// Largest |yaw|, |pitch|, |roll| (degrees).
     pub max_angles: [f64; 3],
+    /// Seed of the random draws.
     pub seed: u64,
 }
 
@@ -52,12 +53,17 @@ impl Default for MeshOptions {
 /// One method at one noise level.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct MeshRow {
+    /// The scheme the landmarks are sent in.
     pub scheme: String,
+    /// The method asked for.
     pub method: Method,
     /// The method `auto` chose (the same as `method` otherwise).
     pub resolved: Method,
+    /// Landmark noise, σ as a fraction of the inter-ocular distance.
     pub noise: f64,
+    /// Faces estimated.
     pub faces: usize,
+    /// Faces the method failed on.
     pub failed: usize,
     /// Mean absolute error of yaw, pitch, roll (degrees).
     pub mae: [f64; 3],

@@ -49,12 +49,14 @@ use facepose_core::synth::{PoseGrid, SyntheticView, ViewSynthesizer};
 /// One method on one scheme: a row of Table 1.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct PaperEntry {
+    /// The method.
     pub method: Method,
     /// The scheme the landmarks are sent in (`ibug68`, `inner51`, `five`).
     pub scheme: String,
 }
 
 impl PaperEntry {
+    /// The entry of `method` on `scheme`.
     pub fn new(method: Method, scheme: &str) -> Self {
         PaperEntry {
             method,
@@ -111,6 +113,7 @@ pub struct PaperOptions {
     pub missing: Vec<usize>,
     /// Draws of (test shape, pose) per robustness condition.
     pub robustness_samples: usize,
+    /// Seed of the random draws.
     pub seed: u64,
 }
 
@@ -166,6 +169,7 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// The stage's name in tables.
     pub fn name(self) -> &'static str {
         match self {
             Stage::Training => "training",
@@ -177,15 +181,25 @@ impl Stage {
 /// Errors of one entry at one stage, degrees (MSE in degrees²).
 #[derive(Debug, Clone, Serialize)]
 pub struct PaperRow {
+    /// The entry's label (e.g. `regression, 51 points`).
     pub label: String,
+    /// The entry.
     pub entry: PaperEntry,
+    /// The stage measured.
     pub stage: Stage,
+    /// Estimates made.
     pub estimates: usize,
+    /// Estimates that failed.
     pub failures: usize,
+    /// Mean squared yaw error, degrees².
     pub mse_yaw: f64,
+    /// Mean squared pitch error, degrees².
     pub mse_pitch: f64,
+    /// Mean absolute yaw error, degrees.
     pub mae_yaw: f64,
+    /// Mean absolute pitch error, degrees.
     pub mae_pitch: f64,
+    /// Mean geodesic error, degrees.
     pub geodesic: f64,
 }
 
@@ -202,29 +216,39 @@ pub enum Perturbation {
 /// Errors of one entry under one perturbation.
 #[derive(Debug, Clone, Serialize)]
 pub struct RobustnessRow {
+    /// The entry's label.
     pub label: String,
+    /// The entry.
     pub entry: PaperEntry,
+    /// The perturbation applied.
     pub perturbation: Perturbation,
     /// Points actually dropped per view under `Missing` (see [`missing_points`]), else 0.
     pub dropped: usize,
+    /// Estimates made.
     pub estimates: usize,
+    /// Estimates that failed.
     pub failures: usize,
+    /// Mean absolute yaw error, degrees.
     pub mae_yaw: f64,
+    /// Mean absolute pitch error, degrees.
     pub mae_pitch: f64,
     /// Mean of the two.
     pub mae: f64,
     /// The share of the estimates whose 90% interval holds the true yaw and pitch (NaN when
     /// the model has no calibration).
     pub coverage_yaw: f64,
+    /// As `coverage_yaw`, for pitch.
     pub coverage_pitch: f64,
 }
 
 /// Mean absolute error (mean of yaw and pitch) at each pose of the grid, for one entry.
 #[derive(Debug, Clone, Serialize)]
 pub struct HeatMap {
+    /// The entry's label.
     pub label: String,
     /// Grid yaw values (columns) and pitch values (rows), degrees.
     pub yaw: Vec<f64>,
+    /// Grid pitch values (rows), degrees.
     pub pitch: Vec<f64>,
     /// `values[p * yaw.len() + y]`; `None` where no estimate fell.
     pub values: Vec<Option<f64>>,
@@ -233,13 +257,19 @@ pub struct HeatMap {
 /// Everything the protocol measured.
 #[derive(Debug, Clone, Serialize)]
 pub struct PaperReport {
+    /// The protocol's parameters.
     pub options: PaperOptions,
+    /// Test shapes.
     pub test_shapes: usize,
+    /// Poses of the grid.
     pub poses: usize,
     /// Test views per entry at the testing stage.
     pub test_views: usize,
+    /// Table 1's rows.
     pub rows: Vec<PaperRow>,
+    /// The robustness rows.
     pub robustness: Vec<RobustnessRow>,
+    /// One heat map per entry.
     pub heat_maps: Vec<HeatMap>,
 }
 

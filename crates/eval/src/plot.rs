@@ -47,16 +47,22 @@ const PALETTE: [RGBColor; 10] = [
 /// One line of a chart.
 #[derive(Debug, Clone)]
 pub struct Series {
+    /// The legend's name.
     pub name: String,
+    /// The points `(x, y)`, in the panel's units.
     pub points: Vec<(f64, f64)>,
 }
 
 /// One chart panel.
 #[derive(Debug, Clone)]
 pub struct Panel {
+    /// The panel's title.
     pub title: String,
+    /// The x axis' label.
     pub x_label: String,
+    /// The y axis' label.
     pub y_label: String,
+    /// The lines.
     pub series: Vec<Series>,
 }
 
@@ -457,7 +463,9 @@ mod tests {
 /// each set as its points, its first `outline` points joined (the jaw of ibug68).
 #[derive(Debug, Clone)]
 pub struct LandmarkPanel {
+    /// The panel's title.
     pub title: String,
+    /// How many of each set's first points are joined as an outline.
     pub outline: usize,
     /// (name, points) per set.
     pub sets: Vec<(String, Vec<[f64; 2]>)>,

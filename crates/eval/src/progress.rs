@@ -11,8 +11,11 @@
 /// What a computation is doing; `done` and `total` count the unit of its phase.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Progress {
+    /// The phase.
     pub phase: Phase,
+    /// Units of the phase done.
     pub done: usize,
+    /// Units of the phase in all.
     pub total: usize,
 }
 
@@ -27,7 +30,12 @@ pub enum Phase {
     /// The paper's protocol, robustness: (condition, entry) pairs.
     PaperRobustness,
     /// Structure from motion, condition `condition` (0-based) of `conditions`: shapes.
-    Sfm { condition: usize, conditions: usize },
+    Sfm {
+        /// The condition, 0-based.
+        condition: usize,
+        /// Conditions in all.
+        conditions: usize,
+    },
     /// The HPR table over the yaw x pitch grid: poses.
     HprGrid,
 }
@@ -36,6 +44,7 @@ pub enum Phase {
 /// the threads of [`facepose_core::parallel`]; the calls of one computation still follow the contract
 /// of the module docs (a parallel one serializes them).
 pub trait Observer: Sync {
+    /// Takes one report.
     fn observe(&self, progress: Progress);
 }
 

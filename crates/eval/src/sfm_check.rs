@@ -28,10 +28,13 @@ pub struct SfmCondition {
 /// The outcome of one condition.
 #[derive(Debug, Clone, Serialize)]
 pub struct SfmResult {
+    /// The condition.
     pub condition: SfmCondition,
+    /// Shapes reconstructed.
     pub shapes: usize,
     /// Mean and worst RMS error, fractions of the inter-ocular distance.
     pub mean_error_iod: f64,
+    /// Worst RMS error, fraction of the inter-ocular distance.
     pub max_error_iod: f64,
 }
 

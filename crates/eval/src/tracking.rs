@@ -40,14 +40,19 @@ const WILD_NOISE: f64 = 0.12;
 /// The trajectories' settings.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrackingOptions {
+    /// Number of trajectories.
     pub trajectories: usize,
+    /// Length of each, seconds.
     pub seconds: f64,
+    /// Frames per second.
     pub fps: f64,
     /// Landmark noise, share of the IOD.
     pub noise: f64,
     /// Shares of the frames that are wild and occluded.
     pub wild: f64,
+    /// Share of the frames that are occluded.
     pub occluded: f64,
+    /// Seed of the random draws.
     pub seed: u64,
     /// Acceleration noises of the Kalman filter to compare, degrees/s².
     pub accelerations: Vec<f64>,
@@ -71,14 +76,19 @@ impl Default for TrackingOptions {
 /// One filter's figures over every frame of every trajectory.
 #[derive(Debug, Clone, Serialize)]
 pub struct TrackingRow {
+    /// The filter's name.
     pub filter: String,
+    /// Frames in all.
     pub frames: usize,
     /// Geodesic error to the truth, degrees: RMS, mean, 95th percentile.
     pub rms_error: f64,
+    /// Mean geodesic error, degrees.
     pub mean_error: f64,
+    /// 95th percentile of the geodesic error, degrees.
     pub p95_error: f64,
     /// Mean error on the wild and on the occluded frames.
     pub wild_error: f64,
+    /// Mean error on the occluded frames, degrees.
     pub occluded_error: f64,
     /// RMS of the turn error between consecutive frames, degrees per frame.
     pub jitter: f64,

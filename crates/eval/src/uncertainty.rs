@@ -36,9 +36,11 @@ pub const CALIBRATED_METHODS: [Method; 4] = [
 pub struct Labeled {
     /// The face's position among the `within_99` faces.
     pub face: usize,
+    /// The landmark set sent.
     pub source: Source,
     /// The method asked for (`auto` included).
     pub asked: Method,
+    /// The estimate's calibration figures.
     pub sample: Sample,
 }
 
@@ -141,8 +143,11 @@ pub fn cross_validate(labeled: &[Labeled]) -> Result<Vec<Option<Uncertainty>>> {
 /// Calibration figures of one method on one landmark set, per angle (pitch, yaw, roll).
 #[derive(Debug, Clone, Serialize)]
 pub struct CoverageRow {
+    /// The method.
     pub method: Method,
+    /// The landmark set.
     pub source: Source,
+    /// Estimates with an uncertainty.
     pub estimates: usize,
     /// Share of the estimates whose true angle is inside the 90% interval.
     pub coverage: [f64; 3],
@@ -242,6 +247,7 @@ pub fn spearman(a: &[f64], b: &[f64]) -> f64 {
 /// One decile of the predicted standard deviation.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct ReliabilityBin {
+    /// (estimate, angle) pairs in the bin.
     pub estimates: usize,
     /// Mean predicted standard deviation, degrees.
     pub predicted_sd: f64,

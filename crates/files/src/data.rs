@@ -13,18 +13,31 @@ pub use facepose_core::data::{
 #[derive(thiserror::Error)]
 pub enum DataError {
     #[error("cannot read {path}: {source}{}", hint(source))]
+    /// The file could not be read.
     Io {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("{path}: {reason}")]
-    Parse { path: PathBuf, reason: String },
+    /// The file's content is not what was expected.
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        reason: String,
+    },
     #[error(
         "no shared data folder: looked at {}; give it with --data DIR or FACEPOSE_DATA=DIR \
          (the folder with bfm68/, aflw2000/, mediapipe/)",
         looked.join(", then ")
     )]
-    NoFolder { looked: Vec<String> },
+    /// No shared data folder was found.
+    NoFolder {
+        /// The places looked at, in order.
+        looked: Vec<String>,
+    },
 }
 
 impl std::fmt::Debug for DataError {

@@ -16,14 +16,27 @@ pub const MODEL_FILE: &str = "model.json";
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
     #[error("{path}: {source}")]
+    /// The file could not be read or written.
     Io {
+        /// The file or directory.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("{path}: {source}")]
-    Bundle { path: PathBuf, source: BundleError },
+    /// The file is not a valid bundle.
+    Bundle {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: BundleError,
+    },
     #[error("{path} already exists; choose another --out or remove it")]
-    Exists { path: PathBuf },
+    /// The target exists already.
+    Exists {
+        /// The existing path.
+        path: PathBuf,
+    },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StoreError + '_ {

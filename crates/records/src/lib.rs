@@ -301,8 +301,11 @@ pub struct AngleUncertainty {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[cfg_attr(feature = "openapi", derive(utoipa::ToSchema))]
 pub struct UncertaintyRecord {
+    /// Yaw's uncertainty.
     pub yaw: AngleUncertainty,
+    /// Pitch's uncertainty.
     pub pitch: AngleUncertainty,
+    /// Roll's uncertainty.
     pub roll: AngleUncertainty,
 }
 

@@ -170,17 +170,29 @@ pub const ADMIN_TOKEN_ENV: &str = "FACEPOSE_ADMIN_TOKEN";
 /// The validated configuration.
 #[derive(Debug, Clone)]
 pub struct Config {
+    /// Where to listen (`--addr`).
     pub addr: SocketAddr,
+    /// The models folder (`--models`), if given.
     pub models: Option<PathBuf>,
+    /// The request limits.
     pub limits: Limits,
+    /// Longest the drain may take before the server exits anyway (`--drain-timeout`).
     pub drain_timeout: Duration,
+    /// The connection bounds.
     pub connections: crate::connections::ConnectionLimits,
+    /// Worker threads (`--workers`; default: the number of CPUs).
     pub workers: usize,
+    /// Log line format (`--log-format`).
     pub log_format: LogFormat,
+    /// Log filter, tracing EnvFilter syntax (`--log`).
     pub log: String,
+    /// The admin token, if any (none: admin routes disabled).
     pub admin_token: AdminToken,
+    /// Retraining jobs that may wait while one trains (`--max-queued-jobs`).
     pub max_queued_jobs: usize,
+    /// How often the models folder's active pointers are read (`--registry-poll`).
     pub registry_poll: Duration,
+    /// This replica's name in the retraining jobs it runs (`--replica`).
     pub replica: String,
     /// `None`: every version is kept.
     pub keep_inactive_versions: Option<usize>,
@@ -215,6 +227,7 @@ impl Config {
 pub struct ConfigError {
     /// `--flag`, or the environment variable that has no flag.
     pub setting: String,
+    /// What is wrong with the value.
     pub reason: String,
 }
 

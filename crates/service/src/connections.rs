@@ -55,9 +55,13 @@ pub const MAX_HEADER_LIST: u32 = 256 * 1024;
 /// The connection bounds of the module doc.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ConnectionLimits {
+    /// Most open connections (HTTP/1 and HTTP/2); past it a connection is answered 503 and closed.
     pub max_connections: usize,
+    /// HTTP/1: the time a client has to send a request's headers.
     pub header_timeout: Duration,
+    /// HTTP/2: a connection with no call in progress this long is closed.
     pub idle_timeout: Duration,
+    /// HTTP/2: the interval of keep-alive pings.
     pub keepalive: Duration,
     /// Connections older than about this are asked to close (GOAWAY / close after the
     /// request); `None`: never.

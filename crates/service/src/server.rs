@@ -29,17 +29,24 @@ use crate::{grpc, http, proto};
 /// Why the service could not start or serve.
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
+    /// The configuration is invalid.
     #[error(transparent)]
     Config(#[from] ConfigError),
+    /// The models could not be loaded.
     #[error(transparent)]
     Models(#[from] RegistryError),
+    /// The address could not be bound.
     #[error("cannot listen on {addr}: {source}")]
     Bind {
+        /// The address.
         addr: std::net::SocketAddr,
+        /// The I/O error.
         source: std::io::Error,
     },
+    /// Another I/O error.
     #[error("{0}")]
     Io(#[from] std::io::Error),
+    /// The reflection service could not be built.
     #[error("reflection service: {0}")]
     Reflection(String),
     /// The drain reached `--drain-timeout` with connections still open (they were closed, so
@@ -49,9 +56,11 @@ pub enum ServeError {
         cut_clause(*.connections_open, .abandoned_jobs)
     )]
     DrainCut {
+        /// `--drain-timeout`.
         cap: std::time::Duration,
         /// Whether connections were still open (else only jobs were left).
         connections_open: bool,
+        /// The ids of the retraining jobs left unfinished.
         abandoned_jobs: Vec<String>,
     },
 }

@@ -65,6 +65,7 @@ fn camera(yaw: f64, pitch: f64, roll: f64) -> WeakPerspective {
     .unwrap()
 }
 
+/// The rotation of Euler angles (yaw, pitch, roll), degrees, Pose_Para.
 pub fn rotation(yaw: f64, pitch: f64, roll: f64) -> Rotation3<f64> {
     EulerAngles::new(yaw, pitch, roll).unwrap().to_rotation()
 }
@@ -84,6 +85,7 @@ pub fn rotation_flat(v: &[f64]) -> Rotation3<f64> {
     facepose_core::geometry::rotation_from_rows(rows, 1e-6).unwrap()
 }
 
+/// A gRPC `Face` of these landmarks (image pixels), scheme, method and id.
 pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> proto::Face {
     proto::Face {
         landmarks: facepose_service::grpc::landmark_messages(points),

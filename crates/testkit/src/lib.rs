@@ -27,8 +27,10 @@ pub trait Endpoint {
     /// `http://addr`.
     fn base(&self) -> &str;
 
+    /// The server's address.
     fn addr(&self) -> SocketAddr;
 
+    /// `base()` followed by `path`.
     fn url(&self, path: &str) -> String {
         format!("{}{path}", self.base())
     }

@@ -14,7 +14,9 @@ use crate::raw::raw_get;
 /// A running `facepose serve`; killed when dropped.
 pub struct Process {
     child: Child,
+    /// The address it listens on.
     pub addr: SocketAddr,
+    /// `http://addr`.
     pub base: String,
     logs: Arc<Mutex<String>>,
     started: Instant,
@@ -106,10 +108,12 @@ impl Process {
         panic!("not ready after {limit:?}; logs:\n{}", self.logs());
     }
 
+    /// Its stderr (the logs) so far.
     pub fn logs(&self) -> String {
         self.logs.lock().unwrap().clone()
     }
 
+    /// Its process id.
     pub fn pid(&self) -> u32 {
         self.child.id()
     }

@@ -22,6 +22,7 @@ pub const ADMIN_TOKEN: &str = "test-admin-token-0123456789";
 pub struct TempDir(PathBuf);
 
 impl TempDir {
+    /// A new folder under the system's temporary one, its name holding `tag`.
     pub fn new(tag: &str) -> TempDir {
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -35,10 +36,12 @@ impl TempDir {
         TempDir(d)
     }
 
+    /// Its path.
     pub fn path(&self) -> &Path {
         &self.0
     }
 
+    /// Its path as a string, for a command-line flag.
     pub fn arg(&self) -> &str {
         self.0.to_str().unwrap()
     }
@@ -61,6 +64,7 @@ pub fn population(n: usize, f: impl Fn(Vector3<f64>) -> Vector3<f64>) -> Vec<Vec
         .collect()
 }
 
+/// Shapes as JSON: one `[x, y, z]` per point.
 pub fn shapes_json(shapes: &[Vec<Vector3<f64>>]) -> Value {
     json!(
         shapes
@@ -85,6 +89,7 @@ pub fn place_default_copy(dir: &Path, version: &str) {
     write_bundle_dir(&dir.join("default/versions").join(version), &b).unwrap();
 }
 
+/// An HTTP client with a 30 s timeout.
 pub fn client() -> reqwest::Client {
     reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
@@ -92,6 +97,7 @@ pub fn client() -> reqwest::Client {
         .unwrap()
 }
 
+/// The status and the body as JSON (`null` if not JSON).
 pub async fn json_of(r: reqwest::Response) -> (StatusCode, Value) {
     let status = r.status();
     let text = r.text().await.unwrap();
@@ -99,6 +105,7 @@ pub async fn json_of(r: reqwest::Response) -> (StatusCode, Value) {
     (status, v)
 }
 
+/// `POST path` of `body` with the admin token: status and JSON body.
 pub async fn post_admin(
     c: &reqwest::Client,
     server: &impl Endpoint,
@@ -116,6 +123,7 @@ pub async fn post_admin(
     .await
 }
 
+/// Activates version `version` of model `default`: status and JSON body.
 pub async fn activate(
     c: &reqwest::Client,
     server: &impl Endpoint,
@@ -131,6 +139,7 @@ pub async fn activate(
     .await
 }
 
+/// `GET path`: status and JSON body.
 pub async fn get(c: &reqwest::Client, server: &impl Endpoint, path: &str) -> (StatusCode, Value) {
     json_of(c.get(server.url(path)).send().await.unwrap()).await
 }

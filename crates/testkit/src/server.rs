@@ -24,7 +24,9 @@ struct Flags {
 
 /// A server in the test process; stopped (and waited for) when dropped.
 pub struct Server {
+    /// The address it listens on.
     pub addr: SocketAddr,
+    /// `http://addr`.
     pub base: String,
     /// Its replica name: its log lines are filed under it.
     pub replica: String,

@@ -48,6 +48,7 @@ pub struct Job {
     pub id: String,
     /// The model being retrained.
     pub model: String,
+    /// Its state.
     pub state: JobState,
     /// While running: what it is doing.
     pub stage: Option<JobStage>,
@@ -61,6 +62,7 @@ pub struct Job {
     pub activate: bool,
     /// RFC 3339 times.
     pub created: String,
+    /// When it last changed, RFC 3339.
     pub updated: String,
     /// Kept and dropped shapes (subjects), with the reason of each drop. For 3D shapes it is
     /// there from the start; for multi-view sets once structure from motion has run.

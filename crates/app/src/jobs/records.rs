@@ -43,7 +43,9 @@ pub const LOST_AFTER: Duration = Duration::from_secs(60);
 /// job's version. The first claim stands.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Claim {
+    /// A cancel, through any replica.
     Cancel,
+    /// The running replica's write of the job's version.
     Write,
 }
 

@@ -14,8 +14,11 @@ use super::{DEFAULT_MODEL, ModelSource, Registry, lock};
 /// One version as listed by the API.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct VersionInfo {
+    /// The version's id.
     pub version: String,
+    /// When it was created, RFC 3339.
     pub created: String,
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
     /// The model's own scheme in that version.
     pub scheme: String,
@@ -29,16 +32,19 @@ pub struct VersionInfo {
 /// One model's versions on disk and which is active there.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct StoredVersions {
+    /// The model folder's name.
     pub name: String,
     /// The version the folder's pointer names (or its legacy bundle's); `None`: never
     /// activated.
     pub active: Option<String>,
+    /// Its versions on disk.
     pub versions: Vec<VersionInfo>,
 }
 
 /// The models folder as last read (by the watcher or after a change made here).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Catalog {
+    /// Each model folder's versions, by name.
     pub models: BTreeMap<String, StoredVersions>,
 }
 

@@ -13,30 +13,49 @@ pub use facepose_files::store::unique_suffix;
 #[derive(Debug, thiserror::Error)]
 pub enum VersionError {
     #[error("{}: {source}", path.display())]
+    /// A file or directory could not be read or written.
     Io {
+        /// The path.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error(transparent)]
+    /// A bundle could not be read or written.
     Store(#[from] StoreError),
     #[error("model {name:?} has no version {version:?}{}", list(existing))]
+    /// No such version.
     NotFound {
+        /// The model's name.
         name: String,
+        /// The version asked for.
         version: String,
+        /// The versions there are.
         existing: Vec<String>,
     },
     #[error("version {version} of model {name:?} is active; activate another version first")]
-    Active { name: String, version: String },
+    /// The version is active, so cannot be deleted.
+    Active {
+        /// The model's name.
+        name: String,
+        /// The version.
+        version: String,
+    },
     #[error(
         "version {version} of model {name:?} is the bundle deployed with the folder ({}); it is not deleted through the API",
         path.display()
     )]
+    /// The version is the legacy bundle deployed with the folder, not deleted through the API.
     Legacy {
+        /// The model's name.
         name: String,
+        /// The version.
         version: String,
+        /// The legacy bundle file.
         path: PathBuf,
     },
     #[error("{0}")]
+    /// The request is invalid (the message says why).
     Invalid(String),
 }
 

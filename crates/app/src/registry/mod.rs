@@ -69,15 +69,21 @@ impl std::fmt::Display for ModelSource {
 /// A loaded model with the bundle's metadata (the bundle's arrays are not kept).
 #[derive(Debug)]
 pub struct ServedModel {
+    /// The model's name.
     pub name: String,
+    /// The model's version.
     pub version: String,
     /// RFC 3339.
     pub created: String,
+    /// The bundle's checksum, `sha256:<hex>`.
     pub checksum: String,
+    /// Its provenance: source files, the command that built it, notes.
     pub provenance: Provenance,
+    /// Where it was loaded from.
     pub source: ModelSource,
     /// The models folder entry (`DIR/<store>`) it is a version of, if any.
     pub store: Option<String>,
+    /// The model.
     pub model: PoseModel,
 }
 
@@ -213,10 +219,12 @@ impl ModelSet {
         self.models.values()
     }
 
+    /// Number of models served.
     pub fn len(&self) -> usize {
         self.models.len()
     }
 
+    /// Whether no model is served.
     pub fn is_empty(&self) -> bool {
         self.models.is_empty()
     }
@@ -395,36 +403,56 @@ fn load_resolved(store: &str, source: &Resolved) -> Result<ServedModel, Registry
 #[derive(Debug, thiserror::Error)]
 pub enum RegistryError {
     #[error("models folder {}: {source}", path.display())]
+    /// The models folder could not be read.
     Dir {
+        /// The folder.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("model bundle {0}")]
+    /// A bundle could not be read.
     Bundle(#[from] StoreError),
     #[error("embedded default model: {0}")]
+    /// The embedded default model is invalid.
     Embedded(#[from] BundleError),
     #[error("two models are named {name:?}: {first} and {second}; names must be unique")]
+    /// Two bundles name the same model.
     Duplicate {
+        /// The model's name.
         name: String,
+        /// The first bundle.
         first: String,
+        /// The second bundle.
         second: String,
     },
     #[error("no model named {0:?}")]
+    /// The default model (named) is not among the loaded ones.
     NoDefault(String),
     #[error("loading the models failed: {0}")]
+    /// Loading the models panicked (the message).
     Panicked(String),
     #[error("models folder: {0}")]
+    /// The models folder's versions are inconsistent.
     Versions(#[from] VersionError),
     #[error("{}: holds model {found}, its place in the folder says {expected}", file.display())]
+    /// A bundle's model name differs from its place in the folder.
     Mismatch {
+        /// The bundle file.
         file: PathBuf,
+        /// The model name it holds.
         found: String,
+        /// The name its place says.
         expected: String,
     },
     #[error("{}: names version {version}, which is not in the folder (it has {})", pointer.display(), existing.join(", "))]
+    /// A pointer names a version that is not in the folder.
     Pointer {
+        /// The pointer file.
         pointer: PathBuf,
+        /// The version it names.
         version: String,
+        /// The versions in the folder.
         existing: Vec<String>,
     },
 }

@@ -49,6 +49,7 @@ use super::file_ops::{io, sync_dir, unique_suffix};
 /// One version on disk.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct StoredVersion {
+    /// The version's id.
     pub version: String,
     /// Its bundle file.
     pub file: PathBuf,
@@ -61,6 +62,7 @@ pub struct StoredVersion {
 pub struct StoredModel {
     /// The folder's name.
     pub name: String,
+    /// The folder's path.
     pub dir: PathBuf,
     /// Versions in numeric order, the legacy bundle among them (first if its id is not a
     /// number).

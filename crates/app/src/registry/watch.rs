@@ -27,6 +27,7 @@ pub struct SyncProblem {
     pub model: String,
     /// The version the pointer names (empty when the folder itself could not be read).
     pub version: String,
+    /// What went wrong.
     pub message: String,
 }
 

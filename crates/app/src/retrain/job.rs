@@ -22,7 +22,9 @@ use facepose_core::shape::Shape2;
 /// What a job works with: the registry it writes into and the job table it reports to.
 #[derive(Debug, Clone)]
 pub struct Trainer {
+    /// The registry it writes into.
     pub registry: Arc<Registry>,
+    /// The job table it reports to.
     pub jobs: Arc<Jobs>,
     /// The span of the server the job runs in (its log lines are the server's).
     pub span: tracing::Span,

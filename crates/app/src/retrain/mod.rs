@@ -33,7 +33,9 @@ pub use facepose_core::shape::MAX_POINTS as MAX_SCHEME_POINTS;
 /// The scheme of an upload: a built-in name or a definition.
 #[derive(Debug, Clone)]
 pub enum SchemeSpec {
+    /// A built-in scheme's name.
     Name(String),
+    /// A scheme defined in the upload.
     Definition(Box<Scheme>),
 }
 
@@ -57,6 +59,7 @@ pub struct RawUpload {
     pub data: Option<UploadData>,
     /// Both `shapes` and `subjects` were given.
     pub both: bool,
+    /// The training options.
     pub options: RawOptions,
     /// `None`: activate.
     pub activate: Option<bool>,
@@ -75,7 +78,9 @@ pub enum Work {
     Shapes(ValidatedShapes),
     /// Subjects whose views passed the cheap checks (input index, views), and those dropped.
     Subjects {
+        /// Per subject, its input index and views.
         views: Vec<(usize, Vec<Shape2>)>,
+        /// The subjects dropped.
         dropped: Vec<Dropped>,
     },
 }
@@ -85,10 +90,13 @@ pub enum Work {
 pub struct JobSpec {
     /// The model folder's name.
     pub model: String,
+    /// The scheme of the shapes.
     pub scheme: Scheme,
+    /// The checked training options.
     pub options: UploadOptions,
     /// Activate the version once written.
     pub activate: bool,
+    /// Recorded in the version's provenance.
     pub notes: String,
     /// SHA-256 of the upload (provenance).
     pub sha256: String,
@@ -103,7 +111,9 @@ pub struct JobSpec {
 /// An accepted upload.
 #[derive(Debug)]
 pub struct Prepared {
+    /// The job.
     pub spec: JobSpec,
+    /// What it works on.
     pub work: Work,
 }
 

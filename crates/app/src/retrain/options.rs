@@ -24,8 +24,11 @@ pub const MAX_BINS: usize = 64;
 /// A pose grid as sent: `[min, max, step]` per angle; roll `None` is 0 only.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RawGrid {
+    /// Yaw `[min, max, step]`, degrees.
     pub yaw: [f64; 3],
+    /// Pitch `[min, max, step]`, degrees.
     pub pitch: [f64; 3],
+    /// Roll `[min, max, step]`, degrees (`None`: 0 only).
     pub roll: Option<[f64; 3]>,
 }
 
@@ -36,11 +39,17 @@ pub struct RawOptions {
     pub grid: Option<String>,
     /// A custom grid (wins over `grid`): the coarse grid and the bins.
     pub custom_grid: Option<(RawGrid, Vec<RawGrid>)>,
+    /// Candidate ridge regularizations `ε`.
     pub epsilons: Option<Vec<f64>>,
+    /// Sub-schemes to serve besides the model's own.
     pub subsets: Option<Vec<String>>,
+    /// Principal components of the shape basis (0: none).
     pub components: Option<usize>,
+    /// Seed of the validation views.
     pub seed: Option<u64>,
+    /// Fewest usable shapes an upload needs.
     pub min_shapes: Option<usize>,
+    /// `k` of the outlier threshold `median + k · 1.4826 · MAD`.
     pub outlier_k: Option<f64>,
 }
 

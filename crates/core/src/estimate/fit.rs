@@ -67,6 +67,7 @@ impl Default for FitOptions {
 /// The fitted camera.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RigidFit {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
     /// Pixels per model unit.
     pub scale: f64,

@@ -55,6 +55,7 @@ use crate::shape::Shape2;
 /// by 16 components at a time (32 fill two groups), a system by tiles of 4 unknowns (6 + 14
 /// fill five).
 pub const DEFAULT_FIT_COMPONENTS: usize = 32;
+/// Principal components the robust step moves by default (see above).
 pub const DEFAULT_ROBUST_COMPONENTS: usize = 14;
 
 /// A linear shape model over a scheme's points, with what the fit precomputes from it.
@@ -469,10 +470,12 @@ impl Default for MorphOptions {
 /// The fitted camera and shape.
 #[derive(Debug, Clone)]
 pub struct MorphFit {
+    /// The fitted camera.
     pub camera: RigidFit,
     /// The coefficients of the principal components the fit moved, in standard deviations
     /// from the prior ([`MorphFit::coefficients`] gives the basis shapes' coefficients).
     pub principal: Vec<f64>,
+    /// The fitted shape, model frame, mm.
     pub shape: Vec<Vector3<f64>>,
 }
 

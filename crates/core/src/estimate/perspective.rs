@@ -18,9 +18,13 @@ use crate::shape::Shape2;
 /// Pinhole intrinsics in pixels (focal lengths and principal point; image x right, y down).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Intrinsics {
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels (y down).
     pub cy: f64,
 }
 
@@ -53,7 +57,9 @@ impl Intrinsics {
 /// A perspective pose: rotation and the model origin's position in the camera frame (mm).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PerspectivePose {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
+    /// Model origin in the camera frame, mm.
     pub translation: Vector3<f64>,
     /// Weighted RMS reprojection error in pixels.
     pub rms_px: f64,

@@ -19,6 +19,7 @@ pub struct Moments {
     pub sw: f64,
     /// Weighted centroids of the model points and of the landmarks.
     pub cx: Vector3<f64>,
+    /// Weighted centroid of the landmarks (y-up plane).
     pub cy: Vector2<f64>,
     /// `Σ w dx dxᵀ` of the centred model points.
     pub xx: Matrix3<f64>,

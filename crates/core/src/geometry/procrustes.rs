@@ -8,8 +8,11 @@ use crate::error::{Error, Result};
 /// `dst ≈ scale · R · src + translation`, the least-squares similarity between two 3D point sets.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Similarity3 {
+    /// Scale factor `scale`.
     pub scale: f64,
+    /// Rotation `R`.
     pub rotation: Rotation3<f64>,
+    /// Translation, in `dst`'s units.
     pub translation: Vector3<f64>,
 }
 
@@ -23,8 +26,11 @@ impl Similarity3 {
 /// `dst ≈ scale · R · src + translation` in the plane.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Similarity2 {
+    /// Scale factor `scale`.
     pub scale: f64,
+    /// Rotation `R`.
     pub rotation: Rotation2<f64>,
+    /// Translation, in `dst`'s units.
     pub translation: Vector2<f64>,
 }
 
@@ -162,6 +168,7 @@ pub fn rms_distance3(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> f64 {
 pub struct GpaOptions {
     /// Stop when the mean moves less than this (model units, RMS per point).
     pub tolerance: f64,
+    /// Iterations at most.
     pub max_iterations: usize,
 }
 

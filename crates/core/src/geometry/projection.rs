@@ -12,8 +12,11 @@ use crate::error::{Error, Result, ensure_finite};
 /// translation in the y-up image plane.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct WeakPerspective {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
+    /// Scale `s`, pixels per model unit (mm).
     pub scale: f64,
+    /// Translation `t`, pixels in the y-up image plane.
     pub translation: Vector2<f64>,
 }
 

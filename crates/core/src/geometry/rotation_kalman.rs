@@ -75,6 +75,7 @@ impl KalmanParams {
 /// What the filter made of one measurement.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Filtered {
+    /// The filtered rotation.
     pub rotation: Rotation3<f64>,
     /// Whether the measurement was taken (false: left out by the gate, the track predicted).
     pub accepted: bool,
@@ -108,6 +109,7 @@ impl RotationKalman {
         })
     }
 
+    /// The filter's parameters.
     pub fn params(&self) -> &KalmanParams {
         &self.params
     }

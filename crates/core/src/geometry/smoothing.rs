@@ -89,6 +89,7 @@ impl RotationOneEuro {
         })
     }
 
+    /// The filter's parameters.
     pub fn params(&self) -> &OneEuroParams {
         &self.params
     }

@@ -11,6 +11,7 @@ use crate::error::{Error, Result};
 /// triangles around those vertices are its own surface (they neither hide nor reveal it).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SurfacePoint {
+    /// Indices of the mesh vertices the point stands on.
     pub vertices: Vec<usize>,
 }
 

@@ -5,9 +5,13 @@ use serde::Serialize;
 /// Counts of a binary confusion matrix where the positive class is "hidden".
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
 pub struct Confusion {
+    /// Predicted hidden, truly hidden.
     pub hidden_hit: u64,
+    /// Predicted hidden, truly visible.
     pub false_hidden: u64,
+    /// Predicted visible, truly hidden.
     pub missed_hidden: u64,
+    /// Predicted visible, truly visible.
     pub visible_hit: u64,
 }
 

@@ -13,10 +13,15 @@ use crate::geometry::{Scaling, align3};
 /// standard deviation (e.g. ../shared/data/bfm68/morphable_model.json).
 #[derive(Debug, Clone)]
 pub struct MorphableModel {
+    /// Mean shape, model frame, mm.
     pub mean: Vec<Vector3<f64>>,
+    /// Identity components, one shape offset per component (mm per standard deviation).
     pub shape_basis: Vec<Vec<Vector3<f64>>>,
+    /// Prior mean of the identity coefficients.
     pub shape_coef_mean: Vec<f64>,
+    /// Expression components, one shape offset per component (mm per standard deviation).
     pub expression_basis: Vec<Vec<Vector3<f64>>>,
+    /// Prior mean of the expression coefficients.
     pub expression_coef_mean: Vec<f64>,
 }
 

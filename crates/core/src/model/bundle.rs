@@ -41,16 +41,40 @@ pub const OLDEST_SCHEMA_VERSION: u32 = 1;
 /// A bundle that could not be read: the message names the field and what is wrong.
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
+    /// The text is not a bundle's JSON.
     #[error("not valid JSON for a model bundle at {field}: {reason}")]
-    Parse { field: String, reason: String },
+    Parse {
+        /// Where in the bundle.
+        field: String,
+        /// The parser's complaint.
+        reason: String,
+    },
+    /// A field's value is invalid.
     #[error("{field}: {reason}")]
-    Invalid { field: String, reason: String },
+    Invalid {
+        /// The invalid field.
+        field: String,
+        /// Why it is invalid.
+        reason: String,
+    },
+    /// The content does not hash to the stated checksum.
     #[error(
         "checksum mismatch: the file says {expected}, its content hashes to {actual} (edited or truncated)"
     )]
-    Checksum { expected: String, actual: String },
+    Checksum {
+        /// The checksum the file states.
+        expected: String,
+        /// The checksum of its content.
+        actual: String,
+    },
+    /// A field fails the core's checks.
     #[error("{field}: {source}")]
-    Core { field: String, source: Error },
+    Core {
+        /// The field that failed.
+        field: String,
+        /// The core's error.
+        source: Error,
+    },
 }
 
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> BundleError {
@@ -83,8 +107,11 @@ pub struct Provenance {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SourceFile {
+    /// The file's path, as given to training.
     pub path: String,
+    /// SHA-256 of the file's content, hex.
     pub sha256: String,
+    /// Shapes read from it.
     pub shapes: usize,
 }
 
@@ -92,8 +119,11 @@ pub struct SourceFile {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RegressionEntry {
+    /// The subset's scheme name.
     pub scheme: String,
+    /// Ridge regularization `ε` chosen for the subset.
     pub epsilon: f64,
+    /// One `3 x (2n + 1)` matrix per view bin, row-major (bin 0 coarse).
     pub matrices: Vec<Vec<Vec<f64>>>,
 }
 
@@ -137,8 +167,11 @@ pub struct MeshEntry {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct BasisEntry {
+    /// Mean shape, model frame, mm.
     pub mean: Vec<[f64; 3]>,
+    /// Components, one shape offset each (mm per unit coefficient).
     pub components: Vec<Vec<[f64; 3]>>,
+    /// Prior mean of the coefficients.
     pub prior_mean: Vec<f64>,
 }
 
@@ -146,13 +179,19 @@ pub struct BasisEntry {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Bundle {
+    /// The file format's name.
     pub format: String,
+    /// The bundle schema's version.
     pub schema_version: u32,
+    /// The model's name.
     pub name: String,
+    /// The model's version.
     pub version: String,
     /// RFC 3339.
     pub created: String,
+    /// Where the model came from.
     pub provenance: Provenance,
+    /// The model's own landmark scheme.
     pub scheme: Scheme,
     /// Frontal mean shape, model frame, mm.
     pub mean: Vec<[f64; 3]>,
@@ -162,9 +201,13 @@ pub struct Bundle {
     /// left out of the JSON, so that schema 1 bundles' checksums still verify.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub visibility: Option<VisibilityEntry>,
+    /// Geometric constants of the model.
     pub geometry: GeometryConstants,
+    /// The options it was trained with.
     pub training: TrainOptions,
+    /// One regression per served subset.
     pub regressions: Vec<RegressionEntry>,
+    /// The shape basis, if the model has one.
     pub shape_basis: Option<BasisEntry>,
     /// MediaPipe's face mesh; absent in bundles without one (and then left out of the JSON, so
     /// that their checksums still verify).
@@ -174,6 +217,7 @@ pub struct Bundle {
     /// without one (left out of the JSON, so their checksums stay as they were).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<Calibration>,
+    /// `sha256:<hex>` of the compact JSON with an empty checksum field.
     pub checksum: String,
 }
 

@@ -43,14 +43,18 @@ const LEFT_EYE: [usize; 16] = [
 /// model's scheme (`to_model[k]`: the vertices whose mean is the model's point `k`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct MeshSource {
+    /// Vertices, model frame, mm.
     pub vertices: Vec<Vector3<f64>>,
+    /// Triangles, as vertex indices.
     pub triangles: Vec<[usize; 3]>,
+    /// Per model point, the vertices whose mean is that point.
     pub to_model: Vec<Vec<usize>>,
 }
 
 /// One scheme of the mesh.
 #[derive(Debug, Clone)]
 pub struct MeshScheme {
+    /// The scheme.
     pub scheme: Scheme,
     /// The scheme's points in the model frame (an iris point at its eye's centre).
     pub points: Vec<Vector3<f64>>,

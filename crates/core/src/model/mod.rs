@@ -96,24 +96,32 @@ impl SubsetMap {
 /// One scheme the model answers for.
 #[derive(Debug)]
 pub struct Subset {
+    /// The subset's scheme.
     pub scheme: Scheme,
+    /// How its points come from the model's.
     pub map: SubsetMap,
     /// The mean shape's points in this scheme.
     pub mean: Vec<Vector3<f64>>,
+    /// The subset's pose regression.
     pub regression: RegressionModel,
 }
 
 /// A trained pose model.
 #[derive(Debug)]
 pub struct PoseModel {
+    /// The model's own scheme.
     pub scheme: Scheme,
     /// Frontal mean shape, model frame, mm, centred.
     pub mean: Vec<Vector3<f64>>,
+    /// Hidden point removal on the mean shape's triangulation (the training views' visibility).
     pub hpr: PaperHpr,
+    /// Which points are visible from which directions.
     pub visibility: VisibilityMap,
+    /// Geometric constants of the model.
     pub geometry: GeometryConstants,
     /// Subset 0 is the model's own scheme.
     pub subsets: Vec<Subset>,
+    /// The morphable shape basis, for the shape-fitting methods.
     pub morph: Option<MorphableBasis>,
     /// MediaPipe's face mesh, aligned to the mean: the `mediapipe468` and `mediapipe478`
     /// schemes ([`mesh`]).

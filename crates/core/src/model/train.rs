@@ -134,6 +134,7 @@ fn default_epsilons() -> Vec<f64> {
 /// What [`train`] builds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainOptions {
+    /// The regression's training parameters.
     pub regression: RegressionParams,
     /// Sub-schemes to serve besides the model's own (`inner51`, `five`, `dlib5` for ibug68).
     pub subsets: Vec<String>,
@@ -220,7 +221,9 @@ pub enum BasisSource<'a> {
     /// A published morphable model over the same points, with its expression prior widened by
     /// `expression_spread` (see [`super::basis::morphable_basis`]).
     Morphable {
+        /// The morphable model.
         model: &'a super::basis::MorphableModel,
+        /// Factor widening the expression prior.
         expression_spread: f64,
     },
 }

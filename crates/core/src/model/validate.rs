@@ -88,8 +88,11 @@ impl DropReason {
 /// One dropped shape (or subject): its index in the input, the reason, and the details.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Dropped {
+    /// Index in the input.
     pub index: usize,
+    /// Why it was dropped.
     pub reason: DropReason,
+    /// Details, for people.
     pub detail: String,
 }
 
@@ -187,6 +190,7 @@ pub struct ValidatedShapes {
     pub shapes: Vec<Vec<Vector3<f64>>>,
     /// Input index of each kept shape.
     pub indices: Vec<usize>,
+    /// What was dropped and why.
     pub report: ValidationReport,
 }
 

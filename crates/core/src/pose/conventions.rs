@@ -15,6 +15,7 @@ use super::{Estimate, EstimateOptions, estimate_with};
 /// What a request asks of its answer's conventions.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ConventionOptions<'a> {
+    /// The conventions asked for, in the request's order.
     pub requests: &'a [ConventionRequest],
     /// The camera's orientation in the world: the answers then refer to the world.
     pub orientation: Option<CameraOrientation>,

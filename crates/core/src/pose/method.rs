@@ -79,11 +79,15 @@ pub enum Misfit {
 
 /// What a method's runner gets: the landmarks in a scheme of the model's points.
 pub struct SubsetInput<'a> {
+    /// The model.
     pub model: &'a PoseModel,
+    /// The subset of the model's points the landmarks are in.
     pub subset: &'a Subset,
     /// The scheme's name as the caller gave it, for messages.
     pub scheme: &'a str,
+    /// The landmarks, image pixels (y down).
     pub landmarks: &'a Shape2,
+    /// Options of the rigid fit.
     pub fit_options: FitOptions,
 }
 
@@ -91,7 +95,9 @@ pub struct SubsetInput<'a> {
 /// subset's points) with the fit's camera, which the perspective refinement and the raw spread
 /// start from.
 pub struct Ran<'a> {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
+    /// The fitted shape and its camera, for the fit methods.
     pub fitted: Option<(Cow<'a, [Vector3<f64>]>, RigidFit)>,
 }
 
@@ -100,15 +106,18 @@ pub type Runner = for<'a> fn(&SubsetInput<'a>) -> Result<Ran<'a>>;
 
 /// One estimator: everything the code and the docs say of it.
 pub struct MethodSpec {
+    /// The method.
     pub method: Method,
     /// The name on every interface (kebab-case, as serde writes it).
     pub name: &'static str,
     /// One line for listings and `--help`.
     pub summary: &'static str,
+    /// What the model needs to run it.
     pub needs: Needs,
     /// Refines its pose under full perspective when the request has camera intrinsics; the
     /// others are weak-perspective by construction and refuse a camera.
     pub perspective: bool,
+    /// Which pose the misfit is measured on.
     pub misfit: Misfit,
     /// How it runs on a subset of the model's points (`None`: `auto`, which resolves first).
     run: Option<Runner>,

@@ -29,7 +29,9 @@ pub const MIN_SHAPE_FIT_POINTS: usize = 12;
 /// A pose estimate.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
+    /// The rotation's angles, degrees (Pose_Para).
     pub angles: EulerAngles,
     /// Per input point: visible at the estimated pose (HPR on the mean shape).
     pub visible: Vec<bool>,
@@ -73,7 +75,12 @@ pub const MISFIT_REFUSE: f64 = 0.6;
 pub enum Warning {
     /// The landmarks fit the face in their scheme poorly (misfit between [`MISFIT_WARN`] and
     /// [`MISFIT_REFUSE`]).
-    PoorFit { scheme: String, misfit: f64 },
+    PoorFit {
+        /// The landmarks' scheme.
+        scheme: String,
+        /// The misfit (share of the spread unexplained).
+        misfit: f64,
+    },
 }
 
 impl fmt::Display for Warning {
@@ -164,6 +171,7 @@ impl FromStr for LandmarkStyle {
 /// How to estimate.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct EstimateOptions {
+    /// The estimator.
     pub method: Method,
     /// Pinhole intrinsics: the fit methods then refine the pose under full perspective.
     pub camera: Option<Intrinsics>,

@@ -18,6 +18,7 @@ use super::scheme::{DLIB5_IN_IBUG68, Scheme, dlib5, five, ibug68};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PointClass {
+    /// Dense schemes (68, 51 points, MediaPipe's mesh).
     Dense,
     /// Eye centres, nose tip, mouth corners (`five`), and any other scheme of five points or
     /// fewer.
@@ -90,7 +91,9 @@ pub enum Served {
     Own,
     /// As a subset of a model's own points.
     Subset {
+        /// The scheme it is a subset of.
         parent: Parent,
+        /// How its points come from the parent's.
         map: PointMap,
         /// Served unless the training options say otherwise.
         by_default: bool,
@@ -101,11 +104,15 @@ pub enum Served {
 
 /// One built-in scheme.
 pub struct BuiltinScheme {
+    /// The scheme's name.
     pub name: &'static str,
+    /// Number of points.
     pub points: usize,
     /// One line for listings and `--help`.
     pub summary: &'static str,
+    /// How a model serves it.
     pub served: Served,
+    /// Its class for the uncertainty's calibration.
     pub class: PointClass,
     /// Builds it (`None` for the mesh schemes, which the mesh builds).
     build: Option<fn() -> Scheme>,

@@ -23,7 +23,9 @@ pub fn shape_from_points(points: &[Option<[f64; 2]>]) -> Result<Shape2> {
 /// (MediaPipe's `x`, `y`), pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct ImageSize {
+    /// Width, pixels.
     pub width: f64,
+    /// Height, pixels.
     pub height: f64,
 }
 

@@ -22,10 +22,15 @@ use crate::error::{Error, Result};
 /// model's own scheme ([`Scheme::check_model_scheme`]).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Anchors {
+    /// Points whose mean is the image-left eye centre (the subject's right).
     pub eye_left: Vec<usize>,
+    /// Points whose mean is the image-right eye centre (the subject's left).
     pub eye_right: Vec<usize>,
+    /// Points whose mean is the nose tip.
     pub nose_tip: Vec<usize>,
+    /// Points whose mean is the image-left mouth corner.
     pub mouth_left: Vec<usize>,
+    /// Points whose mean is the image-right mouth corner.
     pub mouth_right: Vec<usize>,
 }
 
@@ -56,9 +61,11 @@ pub const MAX_POINTS: usize = 1000;
 /// A landmark scheme. Construct with [`Scheme::new`] (validated) or a built-in.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Scheme {
+    /// The scheme's name.
     pub name: String,
     /// One name per point, in order.
     pub points: Vec<String>,
+    /// The points the anchors stand on.
     pub anchors: Anchors,
     /// `mirror[i]` is the point that `i` becomes when the face is mirrored left-right.
     #[serde(default)]

@@ -43,7 +43,9 @@ pub const N_FEATURES: usize = 5;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AngleModel {
+    /// Coefficients of `ln σ` on the features.
     pub coefficients: [f64; N_FEATURES],
+    /// Half-width multiplier on `σ`, for the coverage.
     pub multiplier: f64,
 }
 
@@ -51,10 +53,13 @@ pub struct AngleModel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationGroup {
+    /// The method (resolved).
     pub method: Method,
+    /// The point class.
     pub points: PointClass,
     /// Estimates it was fitted on.
     pub samples: usize,
+    /// One model per angle (pitch, yaw, roll).
     pub angles: [AngleModel; 3],
 }
 
@@ -64,6 +69,7 @@ pub struct CalibrationGroup {
 pub struct Calibration {
     /// What it was fitted on, for people.
     pub data: String,
+    /// One group per method and point class.
     pub groups: Vec<CalibrationGroup>,
 }
 
@@ -297,10 +303,15 @@ pub fn fit_angle(samples: &[([f64; N_FEATURES], f64)]) -> Result<AngleModel> {
 /// spread, the estimated angles and the true ones (pitch, yaw, roll, degrees).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sample {
+    /// The method (resolved).
     pub method: Method,
+    /// The point class.
     pub points: PointClass,
+    /// The raw spread of the estimate.
     pub raw: RawSpread,
+    /// Estimated angles: pitch, yaw, roll, degrees.
     pub estimate: [f64; 3],
+    /// True angles: pitch, yaw, roll, degrees.
     pub truth: [f64; 3],
 }
 

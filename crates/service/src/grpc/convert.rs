@@ -129,6 +129,7 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
     }
 }
 
+/// A face's pose as a gRPC `Pose`, with the stream's smoothing outcome.
 pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
     let r = &p.record;
     proto::Pose {
@@ -160,6 +161,7 @@ pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
     }
 }
 
+/// A face's error as a gRPC `FaceError`.
 pub fn face_error(e: &ServiceError) -> proto::FaceError {
     proto::FaceError {
         code: error::code_name(error::code(e.kind())).to_string(),
@@ -167,6 +169,7 @@ pub fn face_error(e: &ServiceError) -> proto::FaceError {
     }
 }
 
+/// A served model as a gRPC `ModelInfo`.
 pub fn model_info(m: ModelView) -> proto::ModelInfo {
     proto::ModelInfo {
         versions: m.versions.into_iter().map(version_message).collect(),
@@ -189,6 +192,7 @@ pub fn model_info(m: ModelView) -> proto::ModelInfo {
     }
 }
 
+/// A model version as a gRPC `VersionInfo`.
 pub fn version_message(v: VersionView) -> proto::VersionInfo {
     proto::VersionInfo {
         version: v.version,

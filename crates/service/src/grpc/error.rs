@@ -93,6 +93,7 @@ pub fn is_too_large(status: &Status) -> bool {
     status.code() == Code::OutOfRange && status.message().contains("too large")
 }
 
+/// The message of a message over `--max-body` (`max_body` bytes), with tonic's detail.
 pub fn too_large_message(max_body: usize, detail: &str) -> String {
     format!("message over the limit of {max_body} bytes (--max-body); split it: {detail}")
 }

@@ -110,6 +110,7 @@ pub struct FrameGuard {
 }
 
 impl FrameGuard {
+    /// A guard of `rpc`'s messages, at most `max_batch` faces each.
     pub fn new(rpc: Rpc, max_batch: usize) -> Self {
         FrameGuard {
             rpc,
@@ -386,6 +387,7 @@ pub struct GuardedBody {
 }
 
 impl GuardedBody {
+    /// `inner` read through `guard`.
     pub fn new(inner: Body, guard: FrameGuard) -> Self {
         GuardedBody { inner, guard }
     }

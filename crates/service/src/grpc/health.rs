@@ -31,6 +31,7 @@ pub struct HealthApi {
 }
 
 impl HealthApi {
+    /// The health service of `app`.
     pub fn new(app: Arc<App>) -> Self {
         HealthApi { app }
     }

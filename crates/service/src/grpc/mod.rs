@@ -42,6 +42,7 @@ pub struct PoseApi {
 }
 
 impl PoseApi {
+    /// The gRPC service of `app`.
     pub fn new(app: Arc<App>) -> Self {
         PoseApi { app }
     }

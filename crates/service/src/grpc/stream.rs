@@ -21,6 +21,7 @@ use super::convert::face_result;
 use super::error::{self, code_name, inbound_error};
 use crate::proto;
 
+/// The results of an `EstimateStream` call, one per frame.
 pub type FrameStream = Pin<Box<dyn Stream<Item = Result<proto::FrameResult, Status>> + Send>>;
 
 /// The smoothing filter of a `Smoothing` message (zero fields take the defaults), or `None`

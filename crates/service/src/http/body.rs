@@ -15,6 +15,7 @@ use super::body_guard::{BodyGuard, Breach, MAX_TOKEN};
 use super::error::HttpError;
 use facepose_core::shape::MAX_POINTS;
 
+/// Refuses (415) a request whose `Content-Type` is not JSON.
 pub fn require_json(headers: &HeaderMap) -> Result<(), HttpError> {
     let Some(ct) = headers.get(header::CONTENT_TYPE) else {
         return Err(HttpError::UnsupportedMediaType(

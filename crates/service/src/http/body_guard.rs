@@ -24,7 +24,10 @@ pub enum BodyKind {
     /// `POST /v1/pose`: `landmarks` of the top object.
     Pose,
     /// `POST /v1/pose:batch`: the `faces` of the top object, and each face's `landmarks`.
-    Batch { max_faces: usize },
+    Batch {
+        /// The batch limit (`--max-batch`).
+        max_faces: usize,
+    },
 }
 
 /// The first limit a body crossed.
@@ -34,11 +37,17 @@ pub enum Breach {
     Faces,
     /// A face's `landmarks` has more than [`facepose_core::shape::MAX_POINTS`] elements; the
     /// face's index in a batch.
-    Points { face: Option<usize> },
+    Points {
+        /// The face's index in a batch; `None` for a single face.
+        face: Option<usize>,
+    },
     /// A string or number of more than [`MAX_TOKEN`] bytes.
     Token,
     /// A string or an object among a face's landmarks; the face's index in a batch.
-    NotALandmark { face: Option<usize> },
+    NotALandmark {
+        /// The face's index in a batch; `None` for a single face.
+        face: Option<usize>,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,6 +107,7 @@ pub struct BodyGuard {
 }
 
 impl BodyGuard {
+    /// A guard for a body of `kind`.
     pub fn new(kind: BodyKind) -> Self {
         BodyGuard {
             kind,

@@ -63,6 +63,7 @@ pub enum ErrorCode {
 }
 
 impl ErrorCode {
+    /// The HTTP status of the code.
     pub fn status(self) -> StatusCode {
         match self {
             ErrorCode::MalformedJson | ErrorCode::MalformedPath => StatusCode::BAD_REQUEST,
@@ -131,6 +132,7 @@ impl HttpError {
         HttpError::Service(ServiceError::invalid(message))
     }
 
+    /// The error's `code`.
     pub fn code(&self) -> ErrorCode {
         match self {
             HttpError::Service(e) => ErrorCode::of(e.kind()),
@@ -221,7 +223,9 @@ pub fn message(e: &ServiceError) -> String {
 #[derive(Debug, Clone, PartialEq, Serialize, utoipa::ToSchema)]
 #[schema(as = ApiError)]
 pub struct ErrorObject {
+    /// The error's kind.
     pub code: ErrorCode,
+    /// What went wrong and what to do, for people.
     pub message: String,
     /// Structured details where a list says more than the message: the validation report of
     /// a rejected upload.
@@ -233,6 +237,7 @@ pub struct ErrorObject {
 /// The JSON body of every HTTP error: `{"error": {"code": "...", "message": "..."}}`.
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct ErrorBody {
+    /// The error.
     pub error: ErrorObject,
 }
 

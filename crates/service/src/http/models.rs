@@ -22,7 +22,9 @@ use super::wire::{
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ModelDetail {
     #[serde(flatten)]
+    /// The model.
     pub summary: ModelSummary,
+    /// Where the model came from: source files, the command that built it, notes.
     pub provenance: ProvenanceSummary,
 }
 

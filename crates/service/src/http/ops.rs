@@ -13,6 +13,7 @@ use utoipa::ToSchema;
 
 use super::body::json_bytes;
 
+/// A health probe's answer: `{"status": ...}`.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Status {
     /// `alive`, `ready` or `draining`.

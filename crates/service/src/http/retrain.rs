@@ -128,6 +128,7 @@ pub struct SubjectUpload {
     #[schema(value_type = Option<Value>)]
     pub id: Option<serde_json::Value>,
     #[schema(schema_with = views_schema)]
+    /// The subject's views: per view, one `[x, y]` (image pixels, y down) or `null` per point.
     pub views: Vec<Vec<Option<Coords<2>>>>,
 }
 
@@ -136,11 +137,14 @@ pub struct SubjectUpload {
 #[serde(deny_unknown_fields)]
 pub struct GridUpload {
     #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
+    /// Yaw `[min, max, step]`, degrees.
     pub yaw: [f64; 3],
     #[schema(value_type = Vec<f64>, min_items = 3, max_items = 3)]
+    /// Pitch `[min, max, step]`, degrees.
     pub pitch: [f64; 3],
     #[serde(default)]
     #[schema(value_type = Option<Vec<f64>>, min_items = 3, max_items = 3)]
+    /// Roll `[min, max, step]`, degrees; absent: 0 only.
     pub roll: Option<[f64; 3]>,
 }
 
@@ -158,8 +162,10 @@ impl From<&GridUpload> for RawGrid {
 #[derive(Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CustomGrid {
+    /// The coarse model's grid.
     pub coarse: GridUpload,
     #[serde(default)]
+    /// The fine bins' grids.
     pub bins: Vec<GridUpload>,
 }
 
@@ -212,6 +218,7 @@ pub struct RetrainRequest {
     #[serde(default)]
     pub subjects: Option<Vec<SubjectUpload>>,
     #[serde(default)]
+    /// Training options; absent: every default.
     pub options: Option<TrainingOptions>,
     /// Activate the new version once written; default true.
     #[serde(default)]

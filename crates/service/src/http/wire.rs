@@ -25,10 +25,14 @@ use super::error::ErrorObject;
 #[serde(deny_unknown_fields)]
 pub struct Camera {
     #[schema(exclusive_minimum = 0.0)]
+    /// Focal length along x, pixels.
     pub fx: f64,
     #[schema(exclusive_minimum = 0.0)]
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels (y down).
     pub cy: f64,
 }
 
@@ -48,6 +52,7 @@ impl From<Camera> for Intrinsics {
 /// float), a string its characters.
 #[derive(Debug, Clone)]
 pub enum FaceId {
+    /// A string id, as sent.
     Text(String),
     /// The number's JSON text.
     Number(Box<RawValue>),
@@ -222,13 +227,16 @@ pub struct PoseRequest {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct PoseResponse {
     #[serde(flatten)]
+    /// The pose.
     pub pose: PoseRecord,
     /// The scheme of the input landmarks.
     pub scheme: String,
     /// The model's name and version.
     pub model: String,
+    /// The version that answered.
     pub model_version: String,
     #[serde(skip_serializing_if = "Option::is_none")]
+    /// The request's `id`, echoed.
     pub id: Option<FaceId>,
 }
 
@@ -237,22 +245,29 @@ pub struct PoseResponse {
 #[serde(deny_unknown_fields)]
 pub struct BatchFace {
     #[schema(schema_with = landmarks_schema)]
+    /// Image pixels (origin top-left, x right, y down), in the scheme's order; `null` for a point that could not be found.
     pub landmarks: Landmarks,
     #[serde(default)]
     #[schema(max_length = 64)]
+    /// The landmark scheme; default: the batch's.
     pub scheme: Option<String>,
     #[serde(default)]
     #[schema(schema_with = method_schema)]
+    /// The estimation method; default: the batch's.
     pub method: Option<String>,
     #[serde(default)]
+    /// Camera intrinsics; default: the batch's.
     pub camera: Option<Camera>,
     #[serde(default)]
     #[schema(schema_with = style_schema)]
+    /// How the landmarks were made (`projected` or `contour`); default: the batch's.
     pub landmark_style: Option<String>,
     #[serde(default)]
     #[schema(schema_with = image_size_schema)]
+    /// `[width, height]`: the landmarks are normalized to this image size; default: the batch's.
     pub image_size: Option<[f64; 2]>,
     #[serde(default)]
+    /// Echoed in the face's result.
     pub id: Option<FaceId>,
     /// The conventions to answer in besides facepose's own (docs/API.md, "Answers in your
     /// convention"); absent or empty: none, at no cost.
@@ -274,6 +289,7 @@ pub struct BatchFace {
     ]
 }))]
 pub struct BatchRequest {
+    /// The faces, at most `--max-batch`.
     pub faces: Vec<BatchFace>,
     /// Defaults for every face.
     #[serde(default)]
@@ -281,14 +297,18 @@ pub struct BatchRequest {
     pub scheme: Option<String>,
     #[serde(default)]
     #[schema(schema_with = method_schema)]
+    /// The estimation method (`auto` by default).
     pub method: Option<String>,
     #[serde(default)]
+    /// Camera intrinsics: the fit methods then refine the pose under full perspective.
     pub camera: Option<Camera>,
     #[serde(default)]
     #[schema(schema_with = style_schema)]
+    /// How the landmarks were made: `projected` (default) or `contour`.
     pub landmark_style: Option<String>,
     #[serde(default)]
     #[schema(schema_with = image_size_schema)]
+    /// `[width, height]`: the landmarks are normalized to this image size (MediaPipe's x, y).
     pub image_size: Option<[f64; 2]>,
     /// One model for the whole batch; default: `default`.
     #[serde(default)]
@@ -310,46 +330,65 @@ pub struct BatchRequest {
 // rare errors some bytes.
 #[allow(clippy::large_enum_variant)]
 pub enum BatchResult {
+    /// The face's pose.
     Pose(BatchPose),
+    /// The face's error.
     Error(BatchError),
 }
 
+/// A face's pose in a batch.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct BatchPose {
     #[serde(flatten)]
+    /// The pose.
     pub pose: PoseRecord,
+    /// The scheme of the input landmarks.
     pub scheme: String,
     #[serde(skip_serializing_if = "Option::is_none")]
+    /// The face's `id`, echoed.
     pub id: Option<FaceId>,
 }
 
+/// A face's error in a batch.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct BatchError {
     #[serde(skip_serializing_if = "Option::is_none")]
+    /// The face's `id`, echoed.
     pub id: Option<FaceId>,
+    /// The error.
     pub error: ErrorObject,
 }
 
+/// `POST /v1/pose:batch`'s answer.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct BatchResponse {
+    /// The model's name.
     pub model: String,
+    /// The version that answered.
     pub model_version: String,
+    /// Faces with a pose.
     pub succeeded: u64,
+    /// Faces with an error.
     pub failed: u64,
     /// One per face, in order.
     pub results: Vec<BatchResult>,
 }
 
+/// A scheme a model serves.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct SchemeSummary {
+    /// The scheme's name.
     pub name: String,
+    /// Number of points.
     pub points: usize,
 }
 
 /// A loaded model.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ModelSummary {
+    /// The model's name.
     pub name: String,
+    /// The version served.
     pub version: String,
     /// RFC 3339.
     pub created: String,
@@ -376,9 +415,11 @@ pub struct ModelSummary {
 /// One version of a model in the models folder.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct VersionSummary {
+    /// The version's id.
     pub version: String,
     /// RFC 3339.
     pub created: String,
+    /// `sha256:<hex>` of the bundle.
     pub checksum: String,
     /// The model's own scheme in that version.
     pub scheme: String,
@@ -394,26 +435,38 @@ pub struct VersionSummary {
     pub fixed: bool,
 }
 
+/// One source file of a model.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct SourceSummary {
+    /// The file's path, as given to training.
     pub path: String,
+    /// SHA-256 of the file's content, hex.
     pub sha256: String,
+    /// Shapes read from it.
     pub shapes: usize,
 }
 
+/// Where a model came from.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ProvenanceSummary {
+    /// The command that built the model.
     pub command: String,
+    /// Free text: licences, protocol.
     pub notes: String,
+    /// The source files with their SHA-256.
     pub sources: Vec<SourceSummary>,
 }
 
+/// `GET /v1/models`: every served model.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ModelsResponse {
+    /// The model answering requests that name none.
     pub default_model: String,
+    /// The served models.
     pub models: Vec<ModelSummary>,
 }
 
+/// A health probe's answer: `{"status": ...}`.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Status {
     /// `alive`, `ready` or `draining`.
@@ -423,9 +476,11 @@ pub struct Status {
 /// `GET /v1/models/{name}/versions`.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct VersionsResponse {
+    /// The model's name.
     pub name: String,
     /// The folder's active version; `null` if none was ever activated.
     pub active: Option<String>,
+    /// Its versions in the models folder.
     pub versions: Vec<VersionSummary>,
 }
 
@@ -434,10 +489,15 @@ pub struct VersionsResponse {
 /// scheme without them (`dlib5`).
 #[derive(Debug, Serialize, ToSchema)]
 pub struct AnchorsSummary {
+    /// Points whose mean is the image-left eye centre (the subject's right).
     pub eye_left: Vec<usize>,
+    /// Points whose mean is the image-right eye centre (the subject's left).
     pub eye_right: Vec<usize>,
+    /// Points whose mean is the nose tip.
     pub nose_tip: Vec<usize>,
+    /// Points whose mean is the image-left mouth corner.
     pub mouth_left: Vec<usize>,
+    /// Points whose mean is the image-right mouth corner.
     pub mouth_right: Vec<usize>,
 }
 
@@ -454,7 +514,9 @@ pub struct AnchorsSummary {
     "contour": []
 }))]
 pub struct SchemeResponse {
+    /// The model's name.
     pub model: String,
+    /// The version that answered.
     pub model_version: String,
     /// The scheme's name, as requests give it.
     pub scheme: String,
@@ -464,6 +526,7 @@ pub struct SchemeResponse {
     /// frame (x towards the subject's left, y up, z towards the camera; the nose tip has the
     /// largest z), origin at the centroid of the model's own scheme.
     pub mean: Vec<[f64; 3]>,
+    /// The points of each semantic anchor.
     pub anchors: AnchorsSummary,
     /// `mirror[i]` is the point `i` becomes when the face is mirrored left-right; `null` when
     /// the scheme does not say.
@@ -499,6 +562,7 @@ impl From<SchemeDetail> for SchemeResponse {
 #[derive(Debug, Serialize, ToSchema)]
 pub struct ActivateResponse {
     #[serde(flatten)]
+    /// The model now served.
     pub model: ModelSummary,
 }
 

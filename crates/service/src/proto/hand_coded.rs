@@ -54,8 +54,11 @@ pub struct Face {
 /// A pose estimate.
 #[derive(Clone, PartialEq, Default, Debug)]
 pub struct Pose {
+    /// Yaw, degrees (Pose_Para).
     pub yaw: f64,
+    /// Pitch, degrees (Pose_Para).
     pub pitch: f64,
+    /// Roll, degrees (Pose_Para).
     pub roll: f64,
     /// R, 9 doubles, row-major.
     pub rotation: Vec<f64>,

@@ -30,15 +30,20 @@ use crate::synth::PoseGrid;
 /// One synthetic training view: pose, projected points (image frame, unit scale) and visibility.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TrainingView {
+    /// The view's pose, degrees.
     pub angles: EulerAngles,
+    /// Projected points, image frame (y down), unit scale.
     pub points: Vec<[f64; 2]>,
+    /// Per point, whether HPR finds it visible.
     pub visible: Vec<bool>,
 }
 
 /// The training views of one pose range.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ViewBin {
+    /// The pose range the views cover.
     pub grid: PoseGrid,
+    /// The views.
     pub views: Vec<TrainingView>,
 }
 
@@ -103,6 +108,7 @@ pub struct RegressionModel {
 /// A regression answer.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RegressionEstimate {
+    /// Rotation, model frame to camera axes.
     pub rotation: Rotation3<f64>,
     /// Which bin answered.
     pub bin: usize,

@@ -22,7 +22,9 @@ use crate::shape::Shape2;
 /// The image's size in pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImageSize {
+    /// Width, pixels.
     pub width: f64,
+    /// Height, pixels.
     pub height: f64,
 }
 
@@ -42,13 +44,17 @@ pub enum Placement {
     /// A weak-perspective fit `[u, -v] = s (R X)[0:2] + t`: the scale `s` (pixels per mm) and
     /// the translation `t` (pixels, y-up plane: the model origin is at pixel `(t.x, -t.y)`).
     Weak {
+        /// Image scale `s`, pixels per mm.
         scale: f64,
+        /// Translation `t`, pixels in the y-up image plane.
         translation: Vector2<f64>,
     },
     /// A perspective pose under `camera`: the model origin in the camera frame (mm; x right,
     /// y up, z towards the viewer, the face at negative z).
     Perspective {
+        /// Model origin in the camera frame, mm.
         translation: Vector3<f64>,
+        /// The camera the pose was refined under.
         camera: Intrinsics,
     },
 }
@@ -57,15 +63,20 @@ pub enum Placement {
 /// per mm) and the rotation relative to the line of sight.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct View {
+    /// The model origin's pixel (image x right, y down).
     pub origin_px: Vector2<f64>,
+    /// Image scale at the origin, pixels per mm.
     pub scale: f64,
+    /// Rotation relative to the line of sight (model frame to camera axes).
     pub rotation: Rotation3<f64>,
 }
 
 /// A pose in a camera: rotation and the model origin (mm), facepose's camera axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraPose {
+    /// Rotation, model frame to facepose's camera axes (x right, y up, z back).
     pub rotation: Rotation3<f64>,
+    /// Model origin in the camera frame, mm.
     pub translation: Vector3<f64>,
 }
 

@@ -59,8 +59,11 @@ use super::request::ConventionError;
 /// One of the three coordinate axes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Axis {
+    /// The x axis.
     X = 0,
+    /// The y axis.
     Y = 1,
+    /// The z axis.
     Z = 2,
 }
 
@@ -96,13 +99,17 @@ pub fn standard_rotation(axis: Axis, rad: f64) -> Matrix3<f64> {
 /// Intrinsic (each turn about the turned axes) or extrinsic (about the fixed axes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Kind {
+    /// Each turn about the axes as turned by the previous ones.
     Intrinsic,
+    /// Each turn about the fixed axes.
     Extrinsic,
 }
 
 impl Kind {
+    /// The names, as requests write them.
     pub const NAMES: [&'static str; 2] = ["intrinsic", "extrinsic"];
 
+    /// The name, as requests write it.
     pub fn name(self) -> &'static str {
         match self {
             Kind::Intrinsic => "intrinsic",
@@ -173,13 +180,17 @@ impl Order {
 /// Degrees or radians.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Units {
+    /// Angles in degrees.
     Degrees,
+    /// Angles in radians.
     Radians,
 }
 
 impl Units {
+    /// The names, as requests write them.
     pub const NAMES: [&'static str; 2] = ["degrees", "radians"];
 
+    /// The name, as requests write it.
     pub fn name(self) -> &'static str {
         match self {
             Units::Degrees => "degrees",
@@ -223,8 +234,10 @@ pub enum Matrices {
 }
 
 impl Matrices {
+    /// The names, as requests write them.
     pub const NAMES: [&'static str; 2] = ["standard", "pose-para"];
 
+    /// The name, as requests write it.
     pub fn name(self) -> &'static str {
         match self {
             Matrices::Standard => "standard",
@@ -241,9 +254,13 @@ pub struct Axes([Direction; 3]);
 /// A direction in the camera's view.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Direction {
+    /// Towards the image's right.
     Right,
+    /// Towards the image's left.
     Left,
+    /// Towards the image's top.
     Up,
+    /// Towards the image's bottom.
     Down,
     /// Towards the viewer (facepose's +z).
     Back,
@@ -376,10 +393,15 @@ impl fmt::Display for Axes {
 /// A complete Euler convention.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct EulerSpec {
+    /// The axes' order of the turns.
     pub order: Order,
+    /// Intrinsic or extrinsic turns.
     pub kind: Kind,
+    /// Degrees or radians.
     pub units: Units,
+    /// The directions the x, y, z axes point in the camera's view.
     pub axes: Axes,
+    /// The sense of the elementary rotation matrices.
     pub matrices: Matrices,
 }
 

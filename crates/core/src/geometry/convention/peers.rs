@@ -56,8 +56,10 @@ pub enum ObjectFrame {
 }
 
 impl ObjectFrame {
+    /// The names, as requests write them.
     pub const NAMES: [&'static str; 2] = ["opencv", "model"];
 
+    /// The name, as requests write it.
     pub fn name(self) -> &'static str {
         match self {
             ObjectFrame::OpenCv => "opencv",
@@ -89,6 +91,7 @@ pub struct OpenCvAnswer {
     pub camera_matrix: [[f64; 3]; 3],
     /// Whether `camera_matrix` was assumed (no intrinsics in the request).
     pub camera_assumed: bool,
+    /// The frame of the object points `rvec` refers to.
     pub object_frame: ObjectFrame,
 }
 
@@ -136,9 +139,11 @@ pub fn rows3(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
 /// MediaPipe's virtual camera (FaceLandmarker's default environment).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VirtualCamera {
+    /// Vertical field of view, degrees.
     pub vertical_fov_deg: f64,
     /// cm; the near and far planes take no part in the matrix.
     pub near: f64,
+    /// Far plane, cm; takes no part in the matrix.
     pub far: f64,
 }
 
@@ -222,7 +227,9 @@ pub struct MediaPipeAnswer {
     pub matrix: [[f64; 4]; 4],
     /// The 16 values column-major (the web's `Matrix.data`, three.js `Matrix4.fromArray`).
     pub data: [f64; 16],
+    /// Rows of `matrix` (4).
     pub rows: usize,
+    /// Columns of `matrix` (4).
     pub columns: usize,
     /// The virtual camera it refers to.
     pub camera: VirtualCamera,

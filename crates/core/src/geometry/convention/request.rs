@@ -24,55 +24,93 @@ use super::peers::{
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum ConventionError {
     #[error("unknown convention {name:?}; the conventions are {}", ConventionRequest::NAMES.join(", "))]
-    UnknownName { name: String },
+    /// No convention has this name.
+    UnknownName {
+        /// The name requested.
+        name: String,
+    },
 
     #[error("convention {convention} has no parameter {param:?}; its parameters are {known}")]
+    /// The convention has no such parameter.
     UnknownParameter {
+        /// The convention's name.
         convention: String,
+        /// The parameter given.
         param: String,
+        /// The convention's parameters, listed.
         known: String,
     },
 
     #[error("convention {convention}: {param} {value:?} is not one; expected {expected}")]
+    /// A parameter's value is not one it takes.
     BadValue {
+        /// The convention's name.
         convention: String,
+        /// The parameter's name.
         param: String,
+        /// The value given.
         value: String,
+        /// What the parameter takes.
         expected: String,
     },
 
     #[error("convention euler: order {order:?} is not an Euler order: {reason}")]
-    BadOrder { order: String, reason: String },
+    /// The Euler order is not three axes of an Euler order.
+    BadOrder {
+        /// The order given.
+        order: String,
+        /// Why it is not one.
+        reason: String,
+    },
 
     #[error(
         "convention euler: order {order:?} is {case_kind} (upper case intrinsic, lower case \
          extrinsic, as in scipy) but kind is {kind}; write the order as {fixed:?} or drop kind"
     )]
+    /// The order's case says one kind and the `kind` parameter another.
     KindConflict {
+        /// The order given.
         order: String,
+        /// The kind its case says.
         case_kind: &'static str,
+        /// The kind parameter.
         kind: &'static str,
+        /// The order rewritten for `kind`.
         fixed: String,
     },
 
     #[error("convention euler needs an order (e.g. \"XYZ\", \"zyx\") or a preset ({presets})")]
-    MissingOrder { presets: String },
+    /// `euler` without an order or a preset.
+    MissingOrder {
+        /// The presets, listed.
+        presets: String,
+    },
 
     #[error("convention {0} is requested twice; the answer has one object per name")]
+    /// A convention named twice in one request (its name).
     Duplicate(String),
 
     #[error(
         "convention list item {0:?} is empty or malformed; write name[:param=value...], e.g. euler:order=zyx:units=radians"
     )]
+    /// A list item not of the form `name[:param=value...]` (the item).
     Malformed(String),
 
     #[error("camera intrinsics: {0}")]
+    /// The camera intrinsics are invalid (why).
     BadIntrinsics(String),
 
     #[error("image size must be positive pixels, got {width} x {height}")]
-    BadImageSize { width: f64, height: f64 },
+    /// The image size is not positive and finite.
+    BadImageSize {
+        /// Width given, pixels.
+        width: f64,
+        /// Height given, pixels.
+        height: f64,
+    },
 
     #[error("{0}")]
+    /// The rotation is not a proper rotation (why).
     NotARotation(String),
 
     #[error(
@@ -80,15 +118,19 @@ pub enum ConventionError {
          (or, with MediaPipe's normalized landmarks, image_size [width, height], from which \
          a camera is assumed)"
     )]
+    /// The convention (named) needs the face's position and the image size or intrinsics.
     NeedsImageSize(&'static str),
 
     #[error("the estimate has no position for convention {0} (use a fit method)")]
+    /// The convention (named) needs a position the estimate lacks.
     NoPlacement(&'static str),
 
     #[error("convention mediapipe needs the model's MediaPipe face mesh: {0}")]
+    /// `mediapipe` with a model without MediaPipe's face mesh (why).
     NoMesh(String),
 
     #[error("the face's placement: {0}")]
+    /// The face's placement is unusable (why).
     BadPlacement(String),
 }
 
@@ -385,9 +427,13 @@ impl PoseInput<'_> {
 /// A unit quaternion, Hamilton, `w ≥ 0`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct QuaternionAnswer {
+    /// Scalar part, `w ≥ 0`.
     pub w: f64,
+    /// Vector part, x.
     pub x: f64,
+    /// Vector part, y.
     pub y: f64,
+    /// Vector part, z.
     pub z: f64,
 }
 
@@ -398,10 +444,13 @@ pub struct EulerAnswer {
     pub angles: [f64; 3],
     /// As written back: upper case intrinsic, lower case extrinsic.
     pub order: String,
+    /// `intrinsic` or `extrinsic`.
     pub kind: &'static str,
+    /// `degrees` or `radians`.
     pub units: &'static str,
     /// Three letters (`RUB`, ...).
     pub axes: String,
+    /// `standard` or `pose-para`.
     pub matrices: &'static str,
     /// The matrix the angles rebuild, in `axes`, row-major.
     pub matrix: [[f64; 3]; 3],
@@ -412,9 +461,13 @@ pub struct EulerAnswer {
 /// One answer.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ConventionAnswer {
+    /// A unit quaternion.
     Quaternion(QuaternionAnswer),
+    /// Euler angles in the requested convention.
     Euler(EulerAnswer),
+    /// OpenCV's `rvec`, `tvec` and camera matrix.
     OpenCv(OpenCvAnswer),
+    /// MediaPipe's facial transformation matrix.
     MediaPipe(MediaPipeAnswer),
 }
 
@@ -434,11 +487,28 @@ impl ConventionAnswer {
 #[derive(Debug, Clone, PartialEq)]
 pub enum ConventionWarning {
     /// `opencv` without intrinsics: the camera was assumed.
-    AssumedCamera { fx: f64, cx: f64, cy: f64 },
+    AssumedCamera {
+        /// Focal length assumed, pixels (both axes).
+        fx: f64,
+        /// Principal point x assumed, pixels.
+        cx: f64,
+        /// Principal point y assumed, pixels (y down).
+        cy: f64,
+    },
     /// `mediapipe` without the image size: taken from the intrinsics' principal point.
-    ImageSizeFromPrincipalPoint { width: f64, height: f64 },
+    ImageSizeFromPrincipalPoint {
+        /// Width taken, pixels.
+        width: f64,
+        /// Height taken, pixels.
+        height: f64,
+    },
     /// Euler angles within 1° of gimbal lock.
-    NearGimbalLock { middle: f64, units: &'static str },
+    NearGimbalLock {
+        /// The middle angle, in `units`.
+        middle: f64,
+        /// `degrees` or `radians`.
+        units: &'static str,
+    },
 }
 
 impl fmt::Display for ConventionWarning {
@@ -468,7 +538,9 @@ impl fmt::Display for ConventionWarning {
 /// The answers to a request's conventions, in the request's order, and the warnings.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ConventionAnswers {
+    /// One answer per requested convention, in the request's order.
     pub answers: Vec<ConventionAnswer>,
+    /// What the caller should know about the answers.
     pub warnings: Vec<ConventionWarning>,
 }
 
