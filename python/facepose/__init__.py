@@ -326,13 +326,14 @@ def _name(v: Any, what: str) -> Optional[str]:
 
 
 def _as_float(a: Any, what: str) -> np.ndarray:
-    """`a` as a C-contiguous float64 array; refuses what is not real numbers."""
+    """`a` as a float64 array (strided views are read as they are); refuses what is not real
+    numbers."""
     arr = np.asarray(a)
     if arr.dtype.kind not in "fiu":
         raise TypeError(
             f"{what} must be real numbers (a float or integer array), got dtype {arr.dtype}"
         )
-    return np.ascontiguousarray(arr, dtype=np.float64)
+    return np.asarray(arr, dtype=np.float64)
 
 
 def estimate(
@@ -499,6 +500,7 @@ def train(
     seed: int = 2011,
     name: str = "trained",
     version: str = "1",
+    created: Optional[str] = None,
 ) -> Model:
     """Trains a model from 3D face shapes, like ``facepose train --shapes``.
 
@@ -512,6 +514,7 @@ def train(
             inner51, five, dlib5).
         seed: seed of the validation views.
         name, version: the model's name and version in its bundle.
+        created: the bundle's creation time, RFC 3339 (default: now, UTC).
 
     The model has no MediaPipe mesh and no uncertainty calibration (answers carry none).
     ``Model.save(folder)`` writes its bundle. The GIL is released while it trains.
@@ -519,8 +522,13 @@ def train(
     a = _as_float(shapes, "shapes")
     if a.ndim != 3:
         raise InvalidParameterError(f"shapes must be an (S, N, 3) array, got shape {a.shape}")
+    if created is None:
+        import datetime
+
+        created = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     return _facepose._train(
         a,
+        created,
         scheme=scheme,
         components=int(components),
         grid=grid,

@@ -429,11 +429,12 @@ impl Model {
 /// `fit-shape`), the regression over `grid`'s views. Like `facepose train --shapes` (without the
 /// MediaPipe mesh and the uncertainty calibration).
 #[pyfunction]
-#[pyo3(signature = (shapes, scheme="ibug68", components=40, grid="wide", subsets=None, seed=2011, name="trained", version="1"))]
+#[pyo3(signature = (shapes, created, scheme="ibug68", components=40, grid="wide", subsets=None, seed=2011, name="trained", version="1"))]
 #[allow(clippy::too_many_arguments)]
 pub fn _train(
     py: Python<'_>,
     shapes: PyReadonlyArray3<'_, f64>,
+    created: &str,
     scheme: &str,
     components: usize,
     grid: &str,
@@ -499,7 +500,7 @@ pub fn _train(
         ),
     };
     let bundle =
-        Bundle::from_model(&model, &opts, name, version, "", provenance).map_err(model_err)?;
+        Bundle::from_model(&model, &opts, name, version, created, provenance).map_err(model_err)?;
     Ok(Model {
         inner: Arc::new(Inner { model, bundle }),
     })
