@@ -324,6 +324,22 @@ impl Model {
         Ok(s.points.clone())
     }
 
+    /// The model's mean 3D shape in a scheme it serves: (N, 3) mm, model frame (x towards the
+    /// subject's left, y up, z towards the camera): a generic face for other solvers
+    /// (`cv2.solvePnP`). For the MediaPipe schemes, the face mesh's points aligned to the mean.
+    fn mean_shape<'py>(
+        &self,
+        py: Python<'py>,
+        scheme: &str,
+    ) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
+        let m = &self.inner.model;
+        let pts: &[Vector3<f64>] = match m.mesh_scheme(scheme) {
+            Some((_, ms)) => &ms.points,
+            None => &m.subset(scheme).map_err(core_err)?.mean,
+        };
+        Ok(Array2::from_shape_fn((pts.len(), 3), |(i, j)| pts[i][j]).into_pyarray(py))
+    }
+
     /// Whether the model has a shape basis (the `fit-shape` method) and an uncertainty calibration.
     #[getter]
     fn has_shape_basis(&self) -> bool {

@@ -151,7 +151,7 @@ def test_batch_releases_the_gil(fitted):
             ticks.append(time.perf_counter())
             time.sleep(0.001)
 
-    faces = np.concatenate([fitted] * 6)
+    faces = np.concatenate([fitted] * 20)
     t = threading.Thread(target=tick)
     t.start()
     time.sleep(0.01)
@@ -163,5 +163,5 @@ def test_batch_releases_the_gil(fitted):
     stop.set()
     t.join()
     # Held GIL: no tick during the batch. Released: about one a millisecond.
-    assert elapsed > 0.02
+    assert elapsed > 0.05
     assert n1 - n0 >= 0.2 * elapsed / 0.001, (n1 - n0, elapsed)

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The Python package as a user gets it, in a venv of its own: `pip install ./python` (the
+# documented build: maturin from PyPI in pip's isolated build environment, the crates from
+# crates.io as python/Cargo.lock pins them), then pytest on python/tests. CI runs it
+# (.ci/run). Extra arguments go to pytest.
+#
+#   scripts/python-test.sh [PYTEST ARGS...]
+#
+# - The venv: target/python-venv, made once (numpy and pytest from PyPI).
+# - The build's cargo folder: target/python (CARGO_TARGET_DIR, when set, is kept).
+# - FACEPOSE_PY_PROFILE=ci builds with python/Cargo.toml's `ci` profile instead of `release`
+#   (a cold build in half the time: see there); CI sets it.
+# - The tests that compare with the CLI and the service take the binary from FACEPOSE_BIN,
+#   else target/{release,debug}/facepose, else build it.
+# - pytest's exit status is this script's: "no tests collected" is 5, a failure like any other.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=target/python-venv
+PIP=("$VENV/bin/pip" --quiet --disable-pip-version-check)
+if ! "$VENV/bin/python" -c 'import numpy, pytest' 2>/dev/null; then
+    echo "== making $VENV (numpy, pytest)" >&2
+    rm -rf "$VENV"
+    python3 -m venv "$VENV"
+    "${PIP[@]}" install 'numpy>=1.21' 'pytest>=7'
+fi
+export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target/python}
+# .ci/run makes clippy-driver the compiler of the root workspace's crates; not of this build.
+unset RUSTC_WORKSPACE_WRAPPER CLIPPY_ARGS
+if [ -n "${FACEPOSE_PY_PROFILE:-}" ]; then
+    export MATURIN_PEP517_ARGS="--profile $FACEPOSE_PY_PROFILE"
+fi
+start=$(date +%s)
+echo "== pip install ./python (${FACEPOSE_PY_PROFILE:-release} profile, cargo folder $CARGO_TARGET_DIR)" >&2
+"${PIP[@]}" install --force-reinstall --no-deps ./python
+echo "== built and installed in $(($(date +%s) - start)) s; pytest python/tests" >&2
+"$VENV/bin/python" -m pytest -q -p no:cacheprovider python/tests "$@"

@@ -1,0 +1,147 @@
+"""The Python package's speed and accuracy on real faces, beside the Rust in-process figure and
+OpenCV's solvePnP called from Python (scripts/python-bench.sh runs it).
+
+- Faces: the AFLW2000-3D dev faces with every |angle| <= 99° (491), their fitted and
+  re-annotated 68 points and five points from the re-annotated ones (eye centres, nose tip,
+  mouth corners), as crates/core/benches/real_faces.rs takes them.
+- facepose (Python): `facepose.estimate` on the whole (B, N, 2) array, one thread
+  (`threads=1`): the median of 9 runs over the batch, divided by the faces; the same with
+  every core; and one face per call (median over the faces, after a warm-up pass).
+- Rust in process: criterion's `real/{set}/{method}` from `cargo bench --bench real_faces`
+  (crates/core), each iteration estimating every face once through `pose::estimate`: its
+  median time divided by the faces.
+- OpenCV: `cv2.solvePnP` with SOLVEPNP_SQPNP and SOLVEPNP_EPNP, one thread, the generic 3D
+  face being the default model's mean shape (its five anchor means for `five`), the camera as
+  tutorials set it up (focal length = image width 450, principal point the centre); each call
+  timed alone (median over the faces), the rotation turned into facepose's frame
+  (R = diag(1, -1, -1) R_cv) and Pose_Para angles.
+- MAE: the mean of the pitch, yaw and roll mean absolute errors against the ground truth, in
+  degrees (angle differences wrapped to ±180°).
+
+    python scripts/python_bench.py CRITERION_OUTPUT DATASET
+"""
+
+import json
+import math
+import os
+import re
+import statistics
+import sys
+import time
+
+import cv2
+import numpy as np
+
+import facepose
+
+IMAGE = 450
+F = np.diag([1.0, -1.0, -1.0])
+
+
+def pose_para(r):
+    yaw = math.atan2(-r[0, 2], math.hypot(r[0, 0], r[0, 1]))
+    pitch = math.atan2(r[1, 2], r[2, 2])
+    roll = math.atan2(r[0, 1], r[0, 0])
+    return [math.degrees(a) for a in (yaw, pitch, roll)]
+
+
+def wrap(d):
+    return (d + 180.0) % 360.0 - 180.0
+
+
+def five_of(p):
+    return np.array([p[36:42].mean(0), p[42:48].mean(0), p[30], p[48], p[54]])
+
+
+def mae(angles, truth):
+    """angles, truth: (B, 3) yaw, pitch, roll."""
+    e = np.abs(wrap(angles - truth))
+    return e.mean(0).mean()
+
+
+def rust_figures(path, faces):
+    """criterion's median per face, µs, by (set, method)."""
+    out = {}
+    text = open(path).read()
+    units = {"ns": 1e-3, "µs": 1.0, "us": 1.0, "ms": 1e3, "s": 1e6}
+    for m in re.finditer(r"real/(\w+)/([\w-]+)\s+time:\s+\[\S+ \S+ (\S+) (\S+) ", text):
+        out[(m.group(1), m.group(2))] = float(m.group(3)) * units[m.group(4)] / faces
+    return out
+
+
+def timed(f, runs):
+    ts = []
+    for _ in range(runs):
+        t = time.perf_counter_ns()
+        f()
+        ts.append(time.perf_counter_ns() - t)
+    return statistics.median(ts) / 1000
+
+
+def main(criterion_out, dataset):
+    cv2.setNumThreads(1)
+    faces = [json.loads(l) for l in open(dataset) if l.strip()]
+    faces = [f for f in faces if f["within_99"]]
+    n = len(faces)
+    truth = np.array([[f["yaw"], f["pitch"], f["roll"]] for f in faces])
+    fitted = np.array([f["landmarks_fitted"] for f in faces], dtype=np.float64)
+    rean = np.array([f["landmarks_reannotated"] for f in faces], dtype=np.float64)
+    five = np.array([five_of(p) for p in rean])
+    sets = [("fitted", "ibug68", fitted), ("reannotated", "ibug68", rean), ("five", "five", five)]
+    rust = rust_figures(criterion_out, n)
+    mean = np.array(json.loads(facepose.Model.default().to_json())["mean"], dtype=np.float64)
+    generic = {"ibug68": mean, "five": five_of(mean)}
+    cores = os.cpu_count()
+
+    print(f"{n} faces (AFLW2000-3D dev, every |angle| <= 99°); µs per face; MAE in degrees.\n")
+    print("| landmarks | method | Python batch, 1 thread | Rust in process (criterion) | ratio | "
+          f"Python batch, {cores} threads | Python, one face per call | MAE |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, scheme, arr in sets:
+        for method in ("auto", "fit"):
+            facepose.estimate(arr, scheme, method, threads=1)  # warm (the regression's caches)
+            one = timed(lambda: facepose.estimate(arr, scheme, method, threads=1), 9) / n
+            allc = timed(lambda: facepose.estimate(arr, scheme, method), 9) / n
+            per_call = []
+            for p in arr:
+                t = time.perf_counter_ns()
+                facepose.estimate(p, scheme, method)
+                per_call.append(time.perf_counter_ns() - t)
+            single = statistics.median(per_call) / 1000
+            b = facepose.estimate(arr, scheme, method)
+            r = rust.get((name, method))
+            rs = f"{r:.2f}" if r else "n/a"
+            ratio = f"{one / r:.2f}" if r else "n/a"
+            print(f"| {name} | {method} ({b.method[0]}) | {one:.2f} | {rs} | {ratio} | {allc:.2f} | "
+                  f"{single:.2f} | {mae(b.angles, truth):.2f} |")
+
+    k = np.array([[IMAGE, 0, IMAGE / 2], [0, IMAGE, IMAGE / 2], [0, 0, 1]], dtype=np.float64)
+    print("\nOpenCV solvePnP from Python, one thread, generic face = the default model's mean "
+          "shape, focal length = image width:\n")
+    print("| landmarks | solver | µs per call (median) | µs per call (mean) | failed | MAE |")
+    print("|---|---|---|---|---|---|")
+    for name, scheme, arr in sets:
+        obj = generic[scheme]
+        for solver, flag in (("SQPnP", cv2.SOLVEPNP_SQPNP), ("EPnP", cv2.SOLVEPNP_EPNP)):
+            ts, angles, failed, kept = [], [], 0, []
+            for i, p in enumerate(arr):
+                t = time.perf_counter_ns()
+                try:
+                    ok, rvec, _ = cv2.solvePnP(obj, p, k, None, flags=flag)
+                except cv2.error:
+                    ok = False
+                ts.append(time.perf_counter_ns() - t)
+                if not ok:
+                    failed += 1
+                    continue
+                angles.append(pose_para(F @ cv2.Rodrigues(rvec)[0]))
+                kept.append(i)
+            e = mae(np.array(angles), truth[kept]) if angles else float("nan")
+            print(f"| {name} | {solver} | {statistics.median(ts) / 1000:.2f} | "
+                  f"{statistics.fmean(ts) / 1000:.2f} | {failed} | {e:.2f} |")
+    print(f"\nfacepose {facepose.__version__}, numpy {np.__version__}, OpenCV {cv2.__version__}, "
+          f"Python {sys.version.split()[0]}.")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], sys.argv[2])
