@@ -186,7 +186,7 @@ class PoseBatch:
         visible: (B, N) bool when every face has N points, else a list of (N_i,) arrays.
         residual: (B,).
         method, scheme: list of B strings.
-        warnings: list of B lists of strings.
+        warnings: list of B tuples of strings (empty when all is well).
         sd: (B, 3) standard deviations of yaw, pitch, roll (NaN without calibration).
         interval90: (B, 3, 2) 90% intervals of yaw, pitch, roll.
         translation: (B, 3) with a camera, else None.
@@ -203,7 +203,7 @@ class PoseBatch:
     residual: np.ndarray
     method: List[str]
     scheme: List[str]
-    warnings: List[List[str]]
+    warnings: List[Tuple[str, ...]]
     sd: np.ndarray
     interval90: np.ndarray
     translation: Optional[np.ndarray]

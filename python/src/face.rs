@@ -94,21 +94,21 @@ impl Options {
     }
 }
 
-/// One face's answer.
+/// One face's answer; `scheme` is the model's name of it.
 #[derive(Debug, Clone)]
-pub struct FacePose {
+pub struct FacePose<'m> {
     pub estimate: Estimate,
-    pub scheme: String,
+    pub scheme: &'m str,
 }
 
 /// Estimates one face: `points` as the caller gave them (`None`: missing).
-pub fn estimate_face(
-    model: &PoseModel,
+pub fn estimate_face<'m>(
+    model: &'m PoseModel,
     o: &Options,
     points: &[Option<[f64; 2]>],
-) -> Result<FacePose, FaceError> {
+) -> Result<FacePose<'m>, FaceError> {
     let scheme = match &o.scheme {
-        Some(s) => s.as_str(),
+        Some(s) => model.scheme(s)?.name.as_str(),
         None => model.scheme_for_count(points.len())?.name.as_str(),
     };
     let shape = pixel_shape(points, o.image_size)?;
@@ -120,10 +120,7 @@ pub fn estimate_face(
                 .into(),
         ));
     }
-    Ok(FacePose {
-        estimate,
-        scheme: scheme.to_string(),
-    })
+    Ok(FacePose { estimate, scheme })
 }
 
 /// What the service's `PoseRecord::is_finite` checks: angles, rotation, residual, translation
@@ -144,12 +141,12 @@ fn is_finite(e: &Estimate) -> bool {
 }
 
 /// Every face of a batch, on up to `threads` threads (contiguous chunks, results in order).
-pub fn estimate_all(
-    model: &PoseModel,
+pub fn estimate_all<'m>(
+    model: &'m PoseModel,
     o: &Options,
     faces: &[Vec<Option<[f64; 2]>>],
     threads: usize,
-) -> Vec<Result<FacePose, FaceError>> {
+) -> Vec<Result<FacePose<'m>, FaceError>> {
     let one = |f: &Vec<Option<[f64; 2]>>| estimate_face(model, o, f);
     // Below this many faces a thread costs more than it saves (~20 us per thread start).
     const MIN_CHUNK: usize = 8;

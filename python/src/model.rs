@@ -16,7 +16,7 @@ use nalgebra::Vector3;
 use numpy::ndarray::{Array1, Array2, Array3, ArrayView2};
 use numpy::{IntoPyArray, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList};
+use pyo3::types::{PyDict, PyList, PyString, PyTuple};
 
 use crate::errors::{FaceError, InvalidParameterError, ModelError, core_err};
 use crate::face::{FacePose, Options, estimate_all, estimate_face};
@@ -76,7 +76,7 @@ fn threads_of(threads: Option<usize>) -> usize {
 }
 
 /// One pose as a dict of `Pose`'s fields.
-fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose) -> PyResult<Bound<'py, PyDict>> {
+fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound<'py, PyDict>> {
     let e: Estimate = p.estimate;
     let d = PyDict::new(py);
     d.set_item("yaw", e.angles.yaw)?;
@@ -118,10 +118,10 @@ fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose) -> PyResult<Bound<'py
 }
 
 /// A batch's answers as columns: NaN (and empty strings) where a face failed.
-fn batch_dict<'py>(
+fn batch_dict<'py, 'm>(
     py: Python<'py>,
     m: &Inner,
-    results: Vec<Result<FacePose, FaceError>>,
+    results: Vec<Result<FacePose<'m>, FaceError>>,
     counts: &[usize],
     camera: bool,
 ) -> PyResult<Bound<'py, PyDict>> {
@@ -142,6 +142,21 @@ fn batch_dict<'py>(
     let schemes = PyList::empty(py);
     let warnings = PyList::empty(py);
     let errors = PyList::empty(py);
+    // One Python string per distinct method and scheme, and one empty tuple for the faces
+    // without warnings: a batch's faces share them (strings and tuples are immutable).
+    let mut names: Vec<(&'m str, Bound<'py, PyString>)> = Vec::new();
+    let mut name = |s: &'m str| -> Bound<'py, PyString> {
+        match names.iter().find(|(k, _)| *k == s) {
+            Some((_, v)) => v.clone(),
+            None => {
+                let v = PyString::new(py, s);
+                names.push((s, v.clone()));
+                v
+            }
+        }
+    };
+    let no_warnings = PyTuple::empty(py);
+    let empty = PyString::new(py, "");
     for (i, r) in results.into_iter().enumerate() {
         match r {
             Ok(p) => {
@@ -180,19 +195,23 @@ fn batch_dict<'py>(
                 } else {
                     visible_list.append(Array1::from(e.visible.clone()).into_pyarray(py))?;
                 }
-                methods.append(e.method.name())?;
-                let w: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
-                warnings.append(w)?;
-                schemes.append(p.scheme)?;
+                methods.append(name(e.method.name()))?;
+                if e.warnings.is_empty() {
+                    warnings.append(&no_warnings)?;
+                } else {
+                    let w: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
+                    warnings.append(PyTuple::new(py, w)?)?;
+                }
+                schemes.append(name(p.scheme))?;
                 errors.append(py.None())?;
             }
             Err(err) => {
                 if !uniform {
                     visible_list.append(Array1::from_elem(counts[i], false).into_pyarray(py))?;
                 }
-                methods.append("")?;
-                schemes.append("")?;
-                warnings.append(PyList::empty(py))?;
+                methods.append(&empty)?;
+                schemes.append(&empty)?;
+                warnings.append(&no_warnings)?;
                 errors.append(err.to_pyerr().into_value(py))?;
             }
         }
