@@ -30,7 +30,7 @@ PY_TARGET=${CARGO_TARGET_DIR:-$PWD/target/python}
 if [ "${1:-}" != "--no-install" ] || ! "$VENV/bin/python" -c 'import facepose' 2>/dev/null; then
     echo "== pip install ./python" >&2
     CARGO_TARGET_DIR=$PY_TARGET \
-        "$VENV/bin/pip" install --quiet --disable-pip-version-check --force-reinstall ./python
+        "$VENV/bin/pip" install --quiet --disable-pip-version-check --force-reinstall --no-deps ./python
 fi
 out=target/python-bench-criterion.txt
 echo "== cargo bench --bench real_faces (auto and fit; criterion's lines in $out)" >&2

@@ -12,7 +12,8 @@
 #   (a cold build in half the time: see there); CI sets it.
 # - The tests that compare with the CLI and the service take the binary from FACEPOSE_BIN,
 #   else target/{release,debug}/facepose, else build it.
-# - pytest's exit status is this script's: "no tests collected" is 5, a failure like any other.
+# - pytest's exit status is this script's: "no tests collected" is 5, a failure like any other;
+#   3 means the venv could not be made (no Python venv module, or PyPI unreachable).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=target/python-venv
@@ -20,8 +21,10 @@ PIP=("$VENV/bin/pip" --quiet --disable-pip-version-check)
 if ! "$VENV/bin/python" -c 'import numpy, pytest' 2>/dev/null; then
     echo "== making $VENV (numpy, pytest)" >&2
     rm -rf "$VENV"
-    python3 -m venv "$VENV"
-    "${PIP[@]}" install 'numpy>=1.21' 'pytest>=7'
+    if ! python3 -m venv "$VENV" || ! "${PIP[@]}" install 'numpy>=1.21' 'pytest>=7'; then
+        echo "cannot make $VENV (python3 -m venv, numpy and pytest from PyPI)" >&2
+        exit 3
+    fi
 fi
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target/python}
 # .ci/run makes clippy-driver the compiler of the root workspace's crates; not of this build.
@@ -33,4 +36,8 @@ start=$(date +%s)
 echo "== pip install ./python (${FACEPOSE_PY_PROFILE:-release} profile, cargo folder $CARGO_TARGET_DIR)" >&2
 "${PIP[@]}" install --force-reinstall --no-deps ./python
 echo "== built and installed in $(($(date +%s) - start)) s; pytest python/tests" >&2
-"$VENV/bin/python" -m pytest -q -p no:cacheprovider python/tests "$@"
+rc=0
+"$VENV/bin/python" -m pytest -q -p no:cacheprovider python/tests "$@" || rc=$?
+# pytest's own 3 (an internal error) is a failure, not "could not run".
+[ "$rc" = 3 ] && rc=1
+exit "$rc"
