@@ -8,8 +8,6 @@
 #
 # - The venv: target/python-venv, made once (numpy and pytest from PyPI).
 # - The build's cargo folder: target/python (CARGO_TARGET_DIR, when set, is kept).
-# - FACEPOSE_PY_PROFILE=ci builds with python/Cargo.toml's `ci` profile instead of `release`
-#   (a cold build in half the time: see there); CI sets it.
 # - The tests that compare with the CLI and the service take the binary from FACEPOSE_BIN,
 #   else target/{release,debug}/facepose, else build it.
 # - pytest's exit status is this script's: "no tests collected" is 5, a failure like any other;
@@ -29,11 +27,8 @@ fi
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target/python}
 # .ci/run makes clippy-driver the compiler of the root workspace's crates; not of this build.
 unset RUSTC_WORKSPACE_WRAPPER CLIPPY_ARGS
-if [ -n "${FACEPOSE_PY_PROFILE:-}" ]; then
-    export MATURIN_PEP517_ARGS="--profile $FACEPOSE_PY_PROFILE"
-fi
 start=$(date +%s)
-echo "== pip install ./python (${FACEPOSE_PY_PROFILE:-release} profile, cargo folder $CARGO_TARGET_DIR)" >&2
+echo "== pip install ./python (release build, cargo folder $CARGO_TARGET_DIR)" >&2
 "${PIP[@]}" install --force-reinstall --no-deps ./python
 echo "== built and installed in $(($(date +%s) - start)) s; pytest python/tests" >&2
 rc=0
