@@ -30,7 +30,10 @@ fn main() {
     };
     let kept: Vec<_> = faces.iter().filter(|f| f.within_99).collect();
     let fitted: Vec<Shape2> = kept.iter().map(|f| shape(&f.landmarks_fitted)).collect();
-    let rean: Vec<Shape2> = kept.iter().map(|f| shape(&f.landmarks_reannotated)).collect();
+    let rean: Vec<Shape2> = kept
+        .iter()
+        .map(|f| shape(&f.landmarks_reannotated))
+        .collect();
     let five: Vec<Shape2> = rean.iter().map(|s| s.to_five(&ibug68()).unwrap()).collect();
     for (set, scheme, faces) in [
         ("fitted", "ibug68", &fitted),

@@ -390,6 +390,7 @@ impl Model {
 
     /// One face: a float64 (N, 2) array. Returns the fields of `Pose` as a dict.
     #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None))]
+    #[allow(clippy::too_many_arguments)]
     fn _estimate_one<'py>(
         &self,
         py: Python<'py>,
