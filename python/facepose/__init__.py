@@ -83,13 +83,21 @@ class Uncertainty:
     roll: AngleUncertainty
 
 
+def _make(cls: Any, fields: Dict[str, Any]) -> Any:
+    """An instance of a frozen dataclass from every one of its fields, without the generated
+    __init__ (which sets each field through object.__setattr__: most of a single face's cost
+    in Python)."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)
+    return obj
+
+
 def _uncertainty(u: Any) -> Optional[Uncertainty]:
     if u is None:
         return None
     sd, iv = u
-    return Uncertainty(
-        *(AngleUncertainty(float(sd[k]), (float(iv[k][0]), float(iv[k][1]))) for k in range(3))
-    )
+    a = [_make(AngleUncertainty, {"sd": sd[k], "interval90": iv[k]}) for k in range(3)]
+    return _make(Uncertainty, {"yaw": a[0], "pitch": a[1], "roll": a[2]})
 
 
 @dataclass(frozen=True)
@@ -167,8 +175,11 @@ class Pose:
 
 
 def _pose(d: Dict[str, Any]) -> Pose:
+    """A Pose from the extension's dict (every field but the tracker's flags)."""
     d["uncertainty"] = _uncertainty(d["uncertainty"])
-    return Pose(**d)
+    d["smoothed"] = False
+    d["gated"] = False
+    return _make(Pose, d)
 
 
 @dataclass(frozen=True)
@@ -276,9 +287,15 @@ def _batch(d: Dict[str, Any]) -> PoseBatch:
     return PoseBatch(yaw=a[:, 0].copy(), pitch=a[:, 1].copy(), roll=a[:, 2].copy(), **d)
 
 
+_DEFAULT: Optional[Model] = None
+
+
 def default_model() -> Model:
     """The embedded default model (ibug68 and its subsets, MediaPipe's meshes, calibrated)."""
-    return Model.default()
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = Model.default()
+    return _DEFAULT
 
 
 def _camera(camera: Any) -> Optional[Tuple[float, float, float, float]]:
@@ -328,6 +345,8 @@ def _name(v: Any, what: str) -> Optional[str]:
 def _as_float(a: Any, what: str) -> np.ndarray:
     """`a` as a float64 array (strided views are read as they are); refuses what is not real
     numbers."""
+    if type(a) is np.ndarray and a.dtype == np.float64:
+        return a
     arr = np.asarray(a)
     if arr.dtype.kind not in "fiu":
         raise TypeError(
@@ -377,7 +396,7 @@ def estimate(
         FaceposeError: (a ValueError) with the service's message for the same input.
         TypeError: landmarks that are not real numbers.
     """
-    m = model if model is not None else Model.default()
+    m = model if model is not None else (_DEFAULT or default_model())
     if not isinstance(m, Model):
         raise TypeError(f"model must be a facepose.Model, got {type(m).__name__}")
     if errors not in ("raise", "keep"):

@@ -93,9 +93,10 @@ fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound
     match &e.uncertainty {
         Some(u) => {
             // The core's order is pitch, yaw, roll; the answer's yaw, pitch, roll.
-            let sd = [u.sd[1], u.sd[0], u.sd[2]];
-            let iv = [u.interval90[1], u.interval90[0], u.interval90[2]];
-            d.set_item("uncertainty", (sd, iv))?;
+            // Tuples: Python's AngleUncertainty takes them as they are.
+            let iv = |k: usize| (u.interval90[k][0], u.interval90[k][1]);
+            let sd = (u.sd[1], u.sd[0], u.sd[2]);
+            d.set_item("uncertainty", (sd, (iv(1), iv(0), iv(2))))?;
             let cov = Array2::from_shape_fn((3, 3), |(i, j)| u.turn_cov[(i, j)]);
             d.set_item("turn_cov", cov.into_pyarray(py))?;
         }

@@ -45,6 +45,7 @@ def test_a_batch_is_its_faces_one_by_one(fitted):
         one = facepose.estimate(faces[i])
         got = b[i]
         assert got.to_dict() == one.to_dict()
+        assert got.uncertainty == one.uncertainty and got.scheme == one.scheme
         np.testing.assert_array_equal(got.turn_cov, one.turn_cov)
 
 
@@ -165,3 +166,15 @@ def test_batch_releases_the_gil(fitted):
     # Held GIL: no tick during the batch. Released: about one a millisecond.
     assert elapsed > 0.05
     assert n1 - n0 >= 0.2 * elapsed / 0.001, (n1 - n0, elapsed)
+
+
+def test_answers_are_immutable(face68):
+    import dataclasses
+
+    p = facepose.estimate(face68)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.yaw = 0.0
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.uncertainty.yaw.sd = 0.0
+    assert isinstance(p.uncertainty.roll.interval90, tuple)
+    assert dataclasses.replace(p, yaw=1.0).yaw == 1.0
