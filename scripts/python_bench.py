@@ -115,6 +115,7 @@ def main(criterion_out, core_out, dataset):
     print("| landmarks | method | Python batch, 1 thread | Rust, same loop | ratio (min) | "
           f"Rust, criterion | Python batch, {cores} threads (min) | Python, one face per call | MAE |")
     print("|---|---|---|---|---|---|---|---|---|")
+    ratios, extra, per_call_extra, maes = [], [], [], []
     for name, scheme, arr in sets:
         for method in ("auto", "fit"):
             facepose.estimate(arr, scheme, method, threads=1)  # warm (the regression's caches)
@@ -132,6 +133,11 @@ def main(criterion_out, core_out, dataset):
             cs = f"{c[0]:.2f} / {c[1]:.2f}" if c else "n/a"
             ratio = f"{lo / c[0]:.2f}" if c else "n/a"
             rs = f"{r:.2f}" if r else "n/a"
+            if c:
+                ratios.append(lo / c[0])
+                extra.append(lo - c[0])
+            per_call_extra.append(single - lo)
+            maes.append(mae(b.angles, truth))
             print(f"| {name} | {method} ({b.method[0]}) | {lo:.2f} / {med:.2f} | {cs} | {ratio} | "
                   f"{rs} | {allc:.2f} | {single:.2f} | {mae(b.angles, truth):.2f} |")
 
@@ -171,17 +177,19 @@ def main(criterion_out, core_out, dataset):
           f"(other processes share the machine: the medians move with them, the minimums "
           f"much less); facepose {facepose.__version__}, numpy {np.__version__}, "
           f"OpenCV {cv2.__version__}, Python {sys.version.split()[0]}.")
-    print("\n- ratio (min): the Python batch's per-face time over the Rust loop's, both the "
-          "minimum of 30 runs; the overhead is the conversion of the arrays in and out and the "
-          "service's checks on each face (scheme, coordinates, a finite answer), about 0.3-0.7 µs "
-          "a face, which shows most beside the 2 µs rigid fit.")
+    if ratios:
+        print(f"\n- ratio (min): the Python batch's per-face time over the Rust loop's, both the "
+              f"minimum of 30 runs: {min(ratios):.2f}-{max(ratios):.2f}. The difference, "
+              f"{min(extra):.2f}-{max(extra):.2f} µs a face, is the conversion of the arrays in "
+              "and out and the service's checks on each face (scheme, coordinates, a finite "
+              "answer); it shows most beside the 2 µs rigid fit.")
     print("- criterion's figure is a median over its samples, taken in the same run a minute "
           "earlier under whatever load there was then.")
-    print("- one face per call: each call builds a `Pose` (a dataclass with numpy arrays): about "
-          "7 µs of Python on top of the estimate; batches avoid it.")
-    print("- OpenCV: the generic face and a pinhole camera leave it 4-5° from the truth where "
-          "facepose's fits, with the same landmarks, are 0.8-4.1° off (`five`: the rigid fit of "
-          "five points, as SQPnP's 4.25° on the same five).")
+    print(f"- one face per call: {min(per_call_extra):.1f}-{max(per_call_extra):.1f} µs more "
+          "than a face of a batch (the call, the checks of the arguments, a `Pose` with its "
+          "numpy arrays); batches avoid it.")
+    print("- OpenCV: with the generic face and a pinhole camera, see its MAE beside facepose's "
+          f"({min(maes):.2f}-{max(maes):.2f}° above) on the same landmarks.")
 
 
 if __name__ == "__main__":
