@@ -18,6 +18,7 @@ answers.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ import numpy as np
 
 from . import _facepose
 from ._facepose import (
+    ConventionError,
     DegenerateError,
     FaceposeError,
     InvalidParameterError,
@@ -42,6 +44,7 @@ from ._facepose import (
 
 __all__ = [
     "AngleUncertainty",
+    "ConventionError",
     "DegenerateError",
     "FaceposeError",
     "InvalidParameterError",
@@ -117,6 +120,9 @@ class Pose:
             mm (x right, y up, z towards the viewer: a face in front has z < 0).
         scheme: the landmark scheme the face was estimated in.
         model, model_version: the model that answered.
+        conventions: the answers in the conventions asked for (``conventions=``), as the
+            service's ``conventions`` object (docs/API.md, "Answers in your convention"), or
+            None.
         turn_cov: (3, 3) covariance of the rotation's small turn, radians², or None: what
             the Kalman tracker weighs the frame by.
         smoothed, gated: set by :class:`Tracker`: the angles and rotation are the filter's;
@@ -137,6 +143,7 @@ class Pose:
     model: str
     model_version: str
     turn_cov: Optional[np.ndarray] = dataclasses.field(default=None, repr=False)
+    conventions: Optional[Dict[str, Any]] = None
     smoothed: bool = False
     gated: bool = False
 
@@ -168,6 +175,8 @@ class Pose:
                     ("roll", self.uncertainty.roll),
                 )
             }
+        if self.conventions is not None:
+            d["conventions"] = self.conventions
         d["scheme"] = self.scheme
         d["model"] = self.model
         d["model_version"] = self.model_version
@@ -177,6 +186,8 @@ class Pose:
 def _pose(d: Dict[str, Any]) -> Pose:
     """A Pose from the extension's dict (every field but the tracker's flags)."""
     d["uncertainty"] = _uncertainty(d["uncertainty"])
+    c = d["conventions"]
+    d["conventions"] = None if c is None else json.loads(c)
     d["smoothed"] = False
     d["gated"] = False
     return _make(Pose, d)
@@ -203,6 +214,8 @@ class PoseBatch:
         translation: (B, 3) with a camera, else None.
         turn_cov: (B, 3, 3) covariances for the Kalman tracker (NaN without calibration).
         errors: list of B exceptions or None.
+        conventions: list of B JSON texts of the conventions' answers (None without
+            ``conventions=``); ``batch[i].conventions`` is face i's as a dict.
         model, model_version: the model that answered.
     """
 
@@ -220,6 +233,7 @@ class PoseBatch:
     translation: Optional[np.ndarray]
     turn_cov: np.ndarray = dataclasses.field(repr=False)
     errors: List[Optional[FaceposeError]] = dataclasses.field(repr=False)
+    conventions: List[Optional[str]] = dataclasses.field(default_factory=list, repr=False)
     model: str = ""
     model_version: str = ""
 
@@ -271,6 +285,7 @@ class PoseBatch:
             model=self.model,
             model_version=self.model_version,
             turn_cov=self.turn_cov[i].copy() if has_u else None,
+            conventions=None if self.conventions[i] is None else json.loads(self.conventions[i]),
         )
 
     def __iter__(self) -> Iterator[Optional[Pose]]:
@@ -342,6 +357,14 @@ def _name(v: Any, what: str) -> Optional[str]:
     raise TypeError(f"{what} must be a string or None, got {type(v).__name__}")
 
 
+def _conventions(c: Any) -> Optional[str]:
+    if c is None or isinstance(c, str):
+        return c
+    if isinstance(c, (list, tuple)) and all(isinstance(x, str) for x in c):
+        return ",".join(c)
+    raise TypeError(f"conventions must be a string or a list of strings, got {type(c).__name__}")
+
+
 def _as_float(a: Any, what: str) -> np.ndarray:
     """`a` as a float64 array (strided views are read as they are); refuses what is not real
     numbers."""
@@ -363,6 +386,7 @@ def estimate(
     *,
     landmark_style: str = "projected",
     image_size: Any = None,
+    conventions: Union[None, str, Sequence[str]] = None,
     model: Optional[Model] = None,
     errors: str = "raise",
     threads: Optional[int] = None,
@@ -384,6 +408,11 @@ def estimate(
             or ``contour`` (2D-style, as dlib: hidden jaw points on the visible outline).
         image_size: (width, height) in pixels when the landmarks are normalized coordinates
             (MediaPipe's x, y); they are scaled to pixels.
+        conventions: answers in other conventions besides facepose's own, as the CLI's
+            ``--conventions`` takes them: ``"quaternion,euler:preset=openface"`` or a list of
+            such items (``quaternion``, ``euler[:order=..:units=..:preset=..]``, ``opencv``,
+            ``mediapipe``; docs/API.md, "Answers in your convention"). The answers are in
+            ``Pose.conventions``.
         model: the model (default: the embedded default model).
         errors: for a batch, ``raise`` (the first failed face raises, its message prefixed by
             ``faces[i]:``) or ``keep`` (failed faces are marked in the batch).
@@ -409,6 +438,7 @@ def estimate(
         landmark_style=_name(landmark_style, "landmark_style"),
         camera=_camera(camera),
         image_size=_pair(image_size, "image_size"),
+        conventions=_conventions(conventions),
     )
     if isinstance(landmarks, (list, tuple)) and landmarks and _is_face_list(landmarks):
         faces = [_as_float(f, f"faces[{i}]") for i, f in enumerate(landmarks)]

@@ -21,6 +21,7 @@ class InvalidParameterError(FaceposeError): ...
 class InvalidSchemeError(FaceposeError): ...
 class NotAFaceError(FaceposeError): ...
 class NumericalError(FaceposeError): ...
+class ConventionError(FaceposeError): ...
 class ModelError(FaceposeError): ...
 
 _Camera = Optional[Tuple[float, float, float, float]]
@@ -62,6 +63,7 @@ class Model:
         landmark_style: Optional[str] = ...,
         camera: _Camera = ...,
         image_size: _Size = ...,
+        conventions: Optional[str] = ...,
     ) -> Dict[str, Any]: ...
     def _estimate_array(
         self,
@@ -71,6 +73,7 @@ class Model:
         landmark_style: Optional[str] = ...,
         camera: _Camera = ...,
         image_size: _Size = ...,
+        conventions: Optional[str] = ...,
         threads: Optional[int] = ...,
     ) -> Dict[str, Any]: ...
     def _estimate_list(
@@ -81,6 +84,7 @@ class Model:
         landmark_style: Optional[str] = ...,
         camera: _Camera = ...,
         image_size: _Size = ...,
+        conventions: Optional[str] = ...,
         threads: Optional[int] = ...,
     ) -> Dict[str, Any]: ...
 

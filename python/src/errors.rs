@@ -57,6 +57,12 @@ create_exception!(
 );
 create_exception!(
     facepose,
+    ConventionError,
+    FaceposeError,
+    "A convention that cannot be answered as asked."
+);
+create_exception!(
+    facepose,
     NumericalError,
     FaceposeError,
     "The estimator could not converge."
@@ -107,6 +113,7 @@ impl FaceError {
                 Error::InvalidParameter { .. } => InvalidParameterError::new_err(m),
                 Error::InvalidScheme { .. } => InvalidSchemeError::new_err(m),
                 Error::NotAFace { .. } => NotAFaceError::new_err(m),
+                Error::Convention(_) => ConventionError::new_err(m),
                 Error::Numerical(_) => NumericalError::new_err(m),
             },
         }
@@ -138,6 +145,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("InvalidSchemeError", py.get_type::<InvalidSchemeError>())?;
     m.add("NotAFaceError", py.get_type::<NotAFaceError>())?;
     m.add("NumericalError", py.get_type::<NumericalError>())?;
+    m.add("ConventionError", py.get_type::<ConventionError>())?;
     m.add("ModelError", py.get_type::<ModelError>())?;
     Ok(())
 }

@@ -5,9 +5,14 @@
 
 use facepose_core::estimate::Intrinsics;
 use facepose_core::geometry::EulerAngles;
+use facepose_core::geometry::convention::ConventionRequest;
 use facepose_core::model::PoseModel;
-use facepose_core::pose::{Estimate, EstimateOptions, LandmarkStyle, Method, estimate_with};
-use facepose_core::record::{ImageSize, pixel_shape};
+use facepose_core::pose::{
+    ConventionOptions, Estimate, EstimateOptions, LandmarkStyle, Method, conventions_of,
+    estimate_with,
+};
+use facepose_core::shape::pixels::{ImageSize, pixel_shape};
+use facepose_records::{ConventionsRecord, PoseRecord};
 
 use crate::errors::FaceError;
 
@@ -20,6 +25,9 @@ pub struct Options {
     pub scheme: Option<String>,
     pub opts: EstimateOptions,
     pub image_size: Option<ImageSize>,
+    /// The conventions to answer in besides facepose's own (docs/API.md, "Answers in your
+    /// convention").
+    pub conventions: Vec<ConventionRequest>,
 }
 
 fn check_name_length(what: &str, name: &str) -> Result<(), FaceError> {
@@ -39,6 +47,7 @@ fn given(s: Option<&str>) -> Option<&str> {
 impl Options {
     /// Parses the options as the service does; `model_name` is for the message of a method
     /// the model lacks.
+    #[allow(clippy::too_many_arguments)]
     pub fn parse(
         model: &PoseModel,
         model_name: &str,
@@ -47,6 +56,7 @@ impl Options {
         style: Option<&str>,
         camera: Option<[f64; 4]>,
         image_size: Option<[f64; 2]>,
+        conventions: Option<&str>,
     ) -> Result<Options, FaceError> {
         for (what, name) in [
             ("scheme", scheme),
@@ -67,7 +77,8 @@ impl Options {
         };
         if !method.is_supported_by(model) {
             return Err(FaceError::Invalid(format!(
-                "method fit-shape needs a model with a shape basis; model {model_name:?} has none"
+                "method {method} needs {}; model {model_name:?} has none",
+                method.spec().needs.what()
             )));
         }
         let style: LandmarkStyle = match given(style) {
@@ -82,7 +93,12 @@ impl Options {
         if let Some(s) = &image_size {
             s.validate()?;
         }
+        let conventions = match conventions.filter(|c| !c.trim().is_empty()) {
+            Some(c) => ConventionRequest::parse_list(c).map_err(facepose_core::Error::from)?,
+            None => Vec::new(),
+        };
         Ok(Options {
+            conventions,
             scheme,
             opts: EstimateOptions {
                 method,
@@ -99,6 +115,10 @@ impl Options {
 pub struct FacePose<'m> {
     pub estimate: Estimate,
     pub scheme: &'m str,
+    /// The answers in the conventions asked for, as the service's JSON (`conventions` of a
+    /// pose); their warnings are in the estimate's warnings' wake, in `extra_warnings`.
+    pub conventions: Option<String>,
+    pub extra_warnings: Vec<String>,
 }
 
 /// Estimates one face: `points` as the caller gave them (`None`: missing).
@@ -113,14 +133,50 @@ pub fn estimate_face<'m>(
     };
     let shape = pixel_shape(points, o.image_size)?;
     let estimate = estimate_with(model, scheme, &shape, &o.opts)?;
-    if !is_finite(&estimate) {
-        return Err(FaceError::Invalid(
+    let not_finite = || {
+        FaceError::Invalid(
             "could not estimate a pose from these landmarks: the result is not finite; \
              check that they are the pixel coordinates of one face"
                 .into(),
-        ));
+        )
+    };
+    if o.conventions.is_empty() {
+        if !is_finite(&estimate) {
+            return Err(not_finite());
+        }
+        return Ok(FacePose {
+            estimate,
+            scheme,
+            conventions: None,
+            extra_warnings: Vec::new(),
+        });
     }
-    Ok(FacePose { estimate, scheme })
+    let c = conventions_of(
+        model,
+        scheme,
+        &shape,
+        &o.opts,
+        &estimate,
+        &ConventionOptions {
+            requests: &o.conventions,
+            orientation: None,
+            image_size: o.image_size,
+        },
+    )?;
+    // The service's record, for its finite check over the conventions' numbers too.
+    let mut record = PoseRecord::from(&estimate);
+    record.conventions = Some(ConventionsRecord::from(&c));
+    if !record.is_finite() {
+        return Err(not_finite());
+    }
+    let json = serde_json::to_string(&record.conventions)
+        .map_err(|e| FaceError::Invalid(format!("conventions: {e}")))?;
+    Ok(FacePose {
+        estimate,
+        scheme,
+        conventions: Some(json),
+        extra_warnings: c.warnings.iter().map(ToString::to_string).collect(),
+    })
 }
 
 /// What the service's `PoseRecord::is_finite` checks: angles, rotation, residual, translation

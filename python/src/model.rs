@@ -88,8 +88,10 @@ fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound
     d.set_item("visible", Array1::from(e.visible).into_pyarray(py))?;
     d.set_item("residual", e.residual)?;
     d.set_item("method", e.method.name())?;
-    let warnings: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
+    let mut warnings: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
+    warnings.extend(p.extra_warnings.iter().cloned());
     d.set_item("warnings", warnings)?;
+    d.set_item("conventions", p.conventions.as_deref())?;
     match &e.uncertainty {
         Some(u) => {
             // The core's order is pitch, yaw, roll; the answer's yaw, pitch, roll.
@@ -143,6 +145,7 @@ fn batch_dict<'py, 'm>(
     let schemes = PyList::empty(py);
     let warnings = PyList::empty(py);
     let errors = PyList::empty(py);
+    let conventions = PyList::empty(py);
     // One Python string per distinct method and scheme, and one empty tuple for the faces
     // without warnings: a batch's faces share them (strings and tuples are immutable).
     let mut names: Vec<(&'m str, Bound<'py, PyString>)> = Vec::new();
@@ -197,12 +200,14 @@ fn batch_dict<'py, 'm>(
                     visible_list.append(Array1::from(e.visible.clone()).into_pyarray(py))?;
                 }
                 methods.append(name(e.method.name()))?;
-                if e.warnings.is_empty() {
+                if e.warnings.is_empty() && p.extra_warnings.is_empty() {
                     warnings.append(&no_warnings)?;
                 } else {
-                    let w: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
+                    let mut w: Vec<String> = e.warnings.iter().map(ToString::to_string).collect();
+                    w.extend(p.extra_warnings.iter().cloned());
                     warnings.append(PyTuple::new(py, w)?)?;
                 }
+                conventions.append(p.conventions.as_deref())?;
                 schemes.append(name(p.scheme))?;
                 errors.append(py.None())?;
             }
@@ -211,6 +216,7 @@ fn batch_dict<'py, 'm>(
                     visible_list.append(Array1::from_elem(counts[i], false).into_pyarray(py))?;
                 }
                 methods.append(&empty)?;
+                conventions.append(py.None())?;
                 schemes.append(&empty)?;
                 warnings.append(&no_warnings)?;
                 errors.append(err.to_pyerr().into_value(py))?;
@@ -238,6 +244,7 @@ fn batch_dict<'py, 'm>(
     d.set_item("scheme", schemes)?;
     d.set_item("warnings", warnings)?;
     d.set_item("errors", errors)?;
+    d.set_item("conventions", conventions)?;
     d.set_item("model", &m.bundle.name)?;
     d.set_item("model_version", &m.bundle.version)?;
     Ok(d)
@@ -254,6 +261,7 @@ impl Model {
         style: Option<&str>,
         camera: Camera,
         image_size: Size,
+        conventions: Option<&str>,
     ) -> PyResult<Options> {
         let m = &self.inner;
         Ok(Options::parse(
@@ -264,6 +272,7 @@ impl Model {
             style,
             camera,
             image_size,
+            conventions,
         )?)
     }
 
@@ -304,8 +313,8 @@ impl Model {
     #[staticmethod]
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Model> {
         let (bundle, model) = py
-            .detach(|| facepose_files::store::load_model(&path))
-            .map_err(model_err)?;
+            .detach(|| facepose_files::store::load_model(&path).map_err(|e| e.to_string()))
+            .map_err(ModelError::new_err)?;
         Ok(Model {
             inner: Arc::new(Inner { model, bundle }),
         })
@@ -314,8 +323,8 @@ impl Model {
     /// Writes the model's bundle to the folder `path` (which must not exist), atomically.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         let b = &self.inner.bundle;
-        py.detach(|| facepose_files::store::write_bundle_dir(&path, b))
-            .map_err(model_err)
+        py.detach(|| facepose_files::store::write_bundle_dir(&path, b).map_err(|e| e.to_string()))
+            .map_err(ModelError::new_err)
     }
 
     #[getter]
@@ -390,7 +399,7 @@ impl Model {
     }
 
     /// One face: a float64 (N, 2) array. Returns the fields of `Pose` as a dict.
-    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None))]
+    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None, conventions=None))]
     #[allow(clippy::too_many_arguments)]
     fn _estimate_one<'py>(
         &self,
@@ -401,8 +410,16 @@ impl Model {
         landmark_style: Option<&str>,
         camera: Camera,
         image_size: Size,
+        conventions: Option<&str>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let o = self.options(scheme, method, landmark_style, camera, image_size)?;
+        let o = self.options(
+            scheme,
+            method,
+            landmark_style,
+            camera,
+            image_size,
+            conventions,
+        )?;
         let points = points_of(landmarks.as_array())?;
         let inner = Arc::clone(&self.inner);
         let p = py.detach(|| estimate_face(&inner.model, &o, &points))?;
@@ -410,7 +427,7 @@ impl Model {
     }
 
     /// A batch as a float64 (B, N, 2) array. Returns the columns of `PoseBatch` as a dict.
-    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None, threads=None))]
+    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None, conventions=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn _estimate_array<'py>(
         &self,
@@ -421,9 +438,17 @@ impl Model {
         landmark_style: Option<&str>,
         camera: Camera,
         image_size: Size,
+        conventions: Option<&str>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let o = self.options(scheme, method, landmark_style, camera, image_size)?;
+        let o = self.options(
+            scheme,
+            method,
+            landmark_style,
+            camera,
+            image_size,
+            conventions,
+        )?;
         let a = landmarks.as_array();
         let faces = a
             .outer_iter()
@@ -433,7 +458,7 @@ impl Model {
     }
 
     /// A batch as a list of float64 (N_i, 2) arrays.
-    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None, threads=None))]
+    #[pyo3(signature = (landmarks, scheme=None, method=None, landmark_style=None, camera=None, image_size=None, conventions=None, threads=None))]
     #[allow(clippy::too_many_arguments)]
     fn _estimate_list<'py>(
         &self,
@@ -444,9 +469,17 @@ impl Model {
         landmark_style: Option<&str>,
         camera: Camera,
         image_size: Size,
+        conventions: Option<&str>,
         threads: Option<usize>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let o = self.options(scheme, method, landmark_style, camera, image_size)?;
+        let o = self.options(
+            scheme,
+            method,
+            landmark_style,
+            camera,
+            image_size,
+            conventions,
+        )?;
         let faces = landmarks
             .iter()
             .enumerate()
@@ -483,7 +516,7 @@ pub fn _train(
     let scheme_def = Scheme::builtin(scheme).ok_or_else(|| {
         core_err(facepose_core::Error::InvalidScheme {
             scheme: scheme.into(),
-            reason: format!("built-in schemes: {}", Scheme::BUILTIN.join(", ")),
+            reason: format!("built-in schemes: {}", Scheme::builtin_names().join(", ")),
         })
     })?;
     let a = shapes.as_array();

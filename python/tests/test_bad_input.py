@@ -72,6 +72,8 @@ CASES = [
     ("camera-shape", lambda: facepose.estimate(F68, camera=(900, 900)), facepose.InvalidParameterError, "camera"),
     ("camera-dict", lambda: facepose.estimate(F68, camera={"f": 1}), facepose.InvalidParameterError, "fx, fy, cx, cy"),
     ("camera-regression", lambda: facepose.estimate(F68, method="regression", camera=(900, 900, 320, 240)), facepose.InvalidParameterError, "weak-perspective only"),
+    ("convention-name", lambda: facepose.estimate(F68, conventions="quaternions"), facepose.ConventionError, "quaternions"),
+    ("convention-type", lambda: facepose.estimate(F68, conventions=5), TypeError, "conventions"),
     ("not-a-face", lambda: facepose.estimate(np.random.default_rng(1).uniform(100, 400, (68, 2))), facepose.NotAFaceError, "do not look like a face"),
     ("errors-arg", lambda: facepose.estimate(F68[None], errors="ignore"), ValueError, "errors"),
     ("threads-arg", lambda: facepose.estimate(F68[None], threads=0), ValueError, "threads"),

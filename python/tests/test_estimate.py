@@ -163,9 +163,11 @@ def test_batch_releases_the_gil(fitted):
     n1 = len(ticks)
     stop.set()
     t.join()
-    # Held GIL: no tick during the batch. Released: about one a millisecond.
+    # Held GIL: no tick at all during the batch (Rust code holding it is never preempted by
+    # the interpreter's switch interval). Released: up to one a millisecond, fewer on a loaded
+    # machine.
     assert elapsed > 0.05
-    assert n1 - n0 >= 0.2 * elapsed / 0.001, (n1 - n0, elapsed)
+    assert n1 - n0 >= 10, (n1 - n0, elapsed)
 
 
 def test_answers_are_immutable(face68):
@@ -178,3 +180,12 @@ def test_answers_are_immutable(face68):
         p.uncertainty.yaw.sd = 0.0
     assert isinstance(p.uncertainty.roll.interval90, tuple)
     assert dataclasses.replace(p, yaw=1.0).yaw == 1.0
+
+
+def test_conventions(face68):
+    p = facepose.estimate(face68, conventions="quaternion,euler:preset=openface")
+    assert set(p.conventions) == {"quaternion", "euler"}, p.conventions
+    assert p.to_dict()["conventions"] == p.conventions
+    b = facepose.estimate(face68[None], conventions=["quaternion", "euler:preset=openface"])
+    assert b[0].conventions == p.conventions
+    assert facepose.estimate(face68).conventions is None

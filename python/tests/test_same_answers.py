@@ -76,6 +76,7 @@ def cases(aflw, data):
         ("missing-regression", {"method": "regression"}, missing),
         ("camera-fit", {"method": "fit", "camera": [1000.0, 1000.0, 250.0, 250.0]}, fitted[:120]),
         ("geometry", {"method": "geometry"}, fitted[:120]),
+        ("conventions", {"conventions": ["quaternion", "euler:preset=openface", "opencv"], "camera": [450.0, 450.0, 225.0, 225.0]}, fitted[:100]),
         ("mediapipe478-normalized", {"image_size": [1280.0, 720.0]}, mp),
         ("bad-faces", {"scheme": "ibug68"}, bad),
     ]
@@ -111,6 +112,8 @@ def cli(binary, tmp, opts, faces):
         args += ["--camera", ",".join(repr(v) for v in opts["camera"])]
     if "image_size" in opts:
         args += ["--image-size", ",".join(repr(v) for v in opts["image_size"])]
+    if "conventions" in opts:
+        args += ["--conventions", ",".join(opts["conventions"])]
     r = subprocess.run(args, capture_output=True, text=True, timeout=300)
     assert r.returncode in (0, 1, 3), r.stderr
     out = []
@@ -163,6 +166,13 @@ def service(url, opts, faces):
             size = body.pop("image_size")
             for f in body["faces"]:
                 f["image_size"] = size
+        if "conventions" in body:
+            # HTTP takes names or {"name": ..., <parameters>}.
+            reqs = []
+            for item in body["conventions"]:
+                name, *params = item.split(":")
+                reqs.append({"name": name, **dict(p.split("=") for p in params)} if params else name)
+            body["conventions"] = reqs
         if "camera" in body:
             fx, fy, cx, cy = body["camera"]
             body["camera"] = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
