@@ -154,6 +154,13 @@ EOF
       printf '```\n\n'
     fi
   done
+  # The Python package's figures: the last run of scripts/python-bench.sh (it builds the
+  # package, so it is not rerun here).
+  if [ -s docs/results/python.md ]; then
+    printf '## Python package: speed and accuracy\n\n'
+    cmd_block "scripts/python-bench.sh"
+    cat docs/results/python.md
+  fi
 } >"$tmp"
 mv "$tmp" "$out"
 trap - EXIT
