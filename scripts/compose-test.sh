@@ -307,7 +307,24 @@ printf 'FACEPOSE_MAX_CONNECTION_AGE=%s\nFACEPOSE_MAX_CONNECTION_AGE_GRACE=%s\n' 
   >>"$tokdir/compose.env"
 t=$(date +%s.%N)
 timeout 120 "${dc[@]}" up -d "${replicas[@]}" 2>&1 | grep -v '\.\.\. *$' | sed 's/^/  /'
-wait_up 60 || fail "the replicas recreated with the short ages are not all UP within 60 s"
+# Reached at their new addresses: until HAProxy's DNS resolution follows (hold valid 1s), the
+# old containers' entries may still show UP. So wait for UP, then until requests through the
+# balancer (12 at a time) are answered by each of the three (x-served-by), 60 s at most.
+wait_served() { # every replica answers through the balancer within $1 s
+  local deadline=$(($(date +%s) + $1)) seen
+  while :; do
+    seen=$(for _ in $(seq 12); do
+      curl -s --max-time 2 -o /dev/null -D - "http://127.0.0.1:$lb_port/readyz" |
+        tr -d '\r' | awk -F': ' 'tolower($1) == "x-served-by" { print $2 }'
+    done | sort -u | paste -sd ' ')
+    [ "$seen" = "${replicas[*]}" ] && return 0
+    [ "$(date +%s)" -ge "$deadline" ] && return 1
+    sleep 0.2
+  done
+}
+if ! wait_up 60 || ! wait_served 60; then
+  fail "the replicas recreated with the short ages do not all answer through the balancer within 60 s"
+fi
 say "  replicas recreated with the short ages; all UP in HAProxy $(awk -v a="$t" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }') s after up -d"
 seconds_of() { # a duration as the service reads it (500ms, 8s, 5m, 1h) in seconds
   python3 -c 'import re, sys
