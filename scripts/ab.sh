@@ -15,11 +15,14 @@ cd "$(dirname "$0")/.."
 [ $# -eq 2 ] || { echo "usage: scripts/ab.sh OLD_BINARY NEW_BINARY" >&2; exit 2; }
 ROUNDS=${ROUNDS:-2}
 DURATION=${DURATION:-8}
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/server.sh
+. scripts/lib/server.sh
 WORK=$(mktemp -d)
-PID=""
-trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
-cargo build --release --locked --example loadgen 2>&1 | tail -1
-target/release/examples/loadgen bodies "$WORK" --scheme ibug68 --method fit --batch 1000 >/dev/null
+trap 'server_stop; rm -rf "$WORK"' EXIT
+release_build --no-bin --example loadgen
+"$EXAMPLES/loadgen" bodies "$WORK" --scheme ibug68 --method fit --batch 1000 >/dev/null
 cat >"$WORK/post.lua" <<'LUA'
 wrk.method = "POST"
 wrk.headers["Content-Type"] = "application/json"
@@ -29,9 +32,7 @@ printf '| round | binary | gRPC Estimate req/s | batch req/s (x1000 poses) | pos
 for round in $(seq 1 "$ROUNDS"); do
     for which in 1 2; do
         BIN=$1; [ "$which" = 2 ] && BIN=$2
-        PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-        "$BIN" serve --addr "127.0.0.1:$PORT" --log warn & PID=$!
-        until curl -sf -o /dev/null "http://127.0.0.1:$PORT/readyz"; do sleep 0.05; done
+        server_start - --log warn
         G=$(h2load -D "$DURATION" -c 4 -m 16 -t 1 -H 'content-type: application/grpc' \
             -H 'te: trailers' -d "$WORK/estimate.grpc" \
             "http://127.0.0.1:$PORT/facepose.v1.PoseService/Estimate" | awk '/^finished in/ {print $4}')
@@ -40,6 +41,6 @@ for round in $(seq 1 "$ROUNDS"); do
         P=$(BODY="$WORK/pose.json" wrk -t1 -c16 -d"${DURATION}s" -s "$WORK/post.lua" \
             "http://127.0.0.1:$PORT/v1/pose" | awk '/Requests\/sec/ {print $2}')
         printf '| %s | `%s` | %s | %s | %s |\n' "$round" "$BIN" "$G" "$B" "$P"
-        kill "$PID"; wait "$PID" 2>/dev/null || true; PID=""
+        server_stop
     done
 done

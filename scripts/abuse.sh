@@ -14,7 +14,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-. scripts/release-and-venv.sh
+# The release binary (exported as FACEPOSE_BIN, which the Python side runs) and the venv
+# with the h2 package, which frames the gRPC calls.
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+release_build
+VENV=target/abuse-venv
+venv_ensure --check 'import h2' "$VENV" 'h2>=4,<5'
 # The attackers hold thousands of sockets.
 ulimit -n "$(ulimit -Hn)"
 exec "$VENV/bin/python" scripts/abuse.py "$@"

@@ -44,27 +44,16 @@ if [ ! -x "$CHROMIUM" ]; then
 fi
 "$CHROMIUM" --version 2>/dev/null || not_run "$CHROMIUM does not run"
 
-installed() {
-    "$VENV/bin/python" -c "import importlib.metadata as m; print(m.version('$1'))" 2>/dev/null || true
-}
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
 want=("playwright==$PLAYWRIGHT_VERSION")
 [ -n "$SCREENSHOT" ] && want+=("pillow==$PILLOW_VERSION")
-if [ "$(installed playwright)" != "$PLAYWRIGHT_VERSION" ] ||
-    { [ -n "$SCREENSHOT" ] && [ "$(installed pillow)" != "$PILLOW_VERSION" ]; }; then
-    echo "== installing ${want[*]} in $VENV"
-    { [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"; } || not_run "python3 -m venv failed"
-    timeout 600 "$VENV/bin/pip" install -q --disable-pip-version-check --retries 5 "${want[@]}" ||
-        not_run "pip install ${want[*]} failed"
-fi
+venv_ensure "$VENV" "${want[@]}" || not_run "the venv or pip install ${want[*]} failed"
 
-if [ -n "${FACEPOSE_BIN:-}" ]; then
-    BIN=$FACEPOSE_BIN
-else
-    echo "== building (release)"
-    cargo build --release --locked --bin facepose 2>&1 | tail -1
-    BIN=target/release/facepose
-fi
-[ -x "$BIN" ] || { echo "no binary at $BIN"; exit 1; }
+# $FACEPOSE_BIN, else the release build.
+release_build
 
 args=("$BIN" --chromium "$CHROMIUM")
 SHOT_RAW=""

@@ -17,19 +17,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${FACEPOSE_DATA:-../shared/data}
 VENV=target/convention-venv
-PY=${PYTHON:-python3}
-if ! "$VENV/bin/python" -c 'import cv2, mediapipe, scipy' 2>/dev/null; then
-    if ! "$PY" -c 'import sys; sys.exit(not (3, 8) <= sys.version_info[:2] <= (3, 12))'; then
-        echo "mediapipe 0.10.14 has wheels for CPython 3.8-3.12 only; $PY is $("$PY" -V 2>&1)." >&2
-        echo "Set PYTHON to another interpreter." >&2
-        exit 2
-    fi
-    echo "== making $VENV (mediapipe, opencv-contrib-python, scipy)" >&2
-    "$PY" -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check \
-        'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' \
-        'scipy>=1.11,<1.15'
-fi
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+# mediapipe 0.10.14 has wheels for CPython 3.8-3.12 only (PYTHON: another interpreter).
+venv_ensure --python "${PYTHON:-python3}" --requires-python 3.8-3.12 \
+    --check 'import cv2, mediapipe, scipy' "$VENV" \
+    'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' 'scipy>=1.11,<1.15'
 # detector_landmarks.py (imported for MediaPipe's calculator) imports dlib and skimage at the
 # top; this venv has neither, so stub them: only its FaceGeometry class is used.
 "$VENV/bin/python" - "${1:-tests/fixtures/conventions}" "$DATA/mediapipe/canonical_face_468.json" <<'EOF'

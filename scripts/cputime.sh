@@ -22,8 +22,10 @@ if ! command -v perf >/dev/null 2>&1; then
         { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y linux-perf >/dev/null; }
 fi
 if [ -z "${BIN:-}" ]; then
-    cargo build --release --locked --example instructions 2>&1 | tail -1
-    BIN=target/release/examples/instructions
+    # shellcheck source=scripts/lib/release.sh
+    . scripts/lib/release.sh
+    release_build --no-bin --example instructions
+    BIN=$EXAMPLES/instructions
 fi
 # Milliseconds of task-clock for one run.
 ms() { perf stat -x, -e task-clock "$BIN" "$1" "$2" 2>&1 >/dev/null | awk -F, '/task-clock/ {print $1}'; }

@@ -16,21 +16,15 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${FACEPOSE_DATA:-../shared/data}
 VENV=target/detector-venv
-PY=${PYTHON:-python3}
-if ! "$VENV/bin/python" -c 'import dlib, face_recognition_models, mediapipe, skimage' 2>/dev/null; then
-    if ! "$PY" -c 'import sys; sys.exit(not (3, 8) <= sys.version_info[:2] <= (3, 12))'; then
-        echo "mediapipe 0.10.14 has wheels for CPython 3.8-3.12 only; $PY is $("$PY" -V 2>&1)." >&2
-        echo "Set PYTHON to another interpreter." >&2
-        exit 2
-    fi
-    echo "== making $VENV (mediapipe, dlib-bin, face-recognition-models, scikit-image)" >&2
-    "$PY" -m venv "$VENV"
-    # numpy < 2: mediapipe 0.10.14 is built against numpy 1; opencv-contrib-python (which
-    # mediapipe requires) pinned to a release that still supports it, so pip need not search.
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check \
-        'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' \
-        'dlib-bin==20.0.1.post1' 'face-recognition-models==0.3.0' 'scikit-image>=0.24,<0.27' \
-        setuptools
-fi
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+# mediapipe 0.10.14 has wheels for CPython 3.8-3.12 only (PYTHON: another interpreter).
+# numpy < 2: mediapipe 0.10.14 is built against numpy 1; opencv-contrib-python (which
+# mediapipe requires) pinned to a release that still supports it, so pip need not search.
+venv_ensure --python "${PYTHON:-python3}" --requires-python 3.8-3.12 \
+    --check 'import dlib, face_recognition_models, mediapipe, skimage' "$VENV" \
+    'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' \
+    'dlib-bin==20.0.1.post1' 'face-recognition-models==0.3.0' 'scikit-image>=0.24,<0.27' \
+    setuptools
 "$VENV/bin/python" scripts/detector_landmarks.py "${1:-tests/fixtures/detectors}" \
     "$DATA/mediapipe/canonical_face_468.json"

@@ -9,7 +9,8 @@
 #   scripts/detector-report.sh [OUT]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-echo "== building (release)" >&2
-cargo build --release --locked --quiet --bin facepose
-python3 scripts/detector_report.py target/release/facepose tests/fixtures/detectors \
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+release_build
+python3 scripts/detector_report.py "$BIN" tests/fixtures/detectors \
     "${1:-docs/results/detectors.md}"

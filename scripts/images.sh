@@ -24,6 +24,9 @@
 # The vendored crates are keyed by Cargo.lock's hash (an image label): a lock change rebuilds
 # that layer only. Each step is skipped when its result exists, so a re-run is quick; the
 # folders are cached under target/images/ (remove it, and the images, to start over).
+#
+# The figures of the steps that ran (their times, the image's size) are written into the
+# generated block "images" of docs/DEPLOY.md (scripts/lib/docblock.sh; IMAGES_DOC=0: not).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repo=$(pwd)
@@ -31,6 +34,12 @@ work=target/images
 mkdir -p "$work"
 mirror=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
 t_all=$(date +%s)
+# shellcheck source=scripts/lib/docblock.sh
+. scripts/lib/docblock.sh
+figures=$work/figures.tsv # "figure<TAB>value" of this run, for docs/DEPLOY.md
+: >"$figures"
+figure() { printf '%s\t%s\n' "$1" "$2" >>"$figures"; }
+built=0 # something was made (not a re-run with everything in place)
 
 step() { echo "== $*"; }
 elapsed() { echo "   ($(($(date +%s) - $1)) s)"; }
@@ -91,6 +100,7 @@ if ! has_image "$toolchain_image"; then
     rm -rf "$rootfs"/var/cache/apt/archives/*.deb "$rootfs"/var/lib/apt/lists/*
     touch "$rootfs/.complete"
     elapsed "$t"
+    figure '`debootstrap` of the build rootfs (cached after)' "$(($(date +%s) - t)) s"
   fi
   step "copying the host's Rust $host_rust (cargo, rustc, std) into the rootfs"
   t=$(date +%s)
@@ -116,6 +126,8 @@ if ! has_image "$toolchain_image"; then
   # The toolchain is in the image now; the rootfs keeps only Debian's part.
   rm -rf "$rootfs/usr/local/rustup" "$rootfs/usr/local/cargo"
   elapsed "$t"
+  figure 'toolchain copy and image import' "$(($(date +%s) - t)) s"
+  built=1
 fi
 
 # 4. The crates of Cargo.lock, vendored on the host (cargo vendor, from its registry cache or
@@ -149,8 +161,12 @@ EOF
     tail -20 "$work/vendor-build.log" >&2
     exit 1
   }
+  vendored=$(du -sm "$ctx/vendor" | cut -f1)
   rm -rf "$ctx"
   elapsed "$t"
+  figure 'vendor layer (`cargo vendor` and its `docker build`)' \
+    "$(($(date +%s) - t)) s ($vendored MB of crates)"
+  built=1
 fi
 
 # 5. The image itself, from the repository's Dockerfile as anyone builds it.
@@ -161,10 +177,34 @@ docker build -t facepose:dev "$repo" >"$work/docker-build.log" 2>&1 || {
   exit 1
 }
 elapsed "$t"
+# Which of the Dockerfile's two `cargo build` steps ran (the classic builder's log: "Running
+# in" after a step, or "Using cache"): the dependencies' (a cold build), the sources' only, or
+# none (nothing changed).
+ran=$(awk '/^Step [0-9]+\/[0-9]+ : RUN .*cargo build/ { s++; next }
+  /^Step / { s = 0 } s && /^ ---> Running in/ { n++ } END { print n + 0 }' "$work/docker-build.log")
+first_ran=$(awk '/^Step [0-9]+\/[0-9]+ : RUN .*cargo build/ { s = ++k; next }
+  /^Step / { s = 0 } s == 1 && /^ ---> Running in/ { print "yes" }' "$work/docker-build.log")
+if [ "$first_ran" = yes ]; then
+  figure '`docker build -t facepose:dev .`, cold (both `cargo build --release` steps)' \
+    "$(($(date +%s) - t)) s on $(nproc) cores"
+  built=1
+elif [ "$ran" -gt 0 ]; then
+  figure '`docker build -t facepose:dev .` after a source change (the second `cargo build`)' \
+    "$(($(date +%s) - t)) s on $(nproc) cores"
+  built=1
+fi
 
 # 6. The smoke test, then the size.
 step "scripts/image-smoke.sh facepose:dev"
 scripts/image-smoke.sh facepose:dev
 size=$(docker image inspect -f '{{.Size}}' facepose:dev)
-echo "facepose:dev: $((size / 1000)) kB ($(awk -v s="$size" 'BEGIN { printf "%.1f", s / 1e6 }') MB)"
+size_text="$(awk -v s="$size" 'BEGIN { printf "%.1f", s / 1e6 }') MB ($((size / 1000)) kB)"
+echo "facepose:dev: $size_text"
 echo "images: done in $(($(date +%s) - t_all)) s"
+figure '`facepose:dev` image size (`docker image inspect -f {{.Size}}`)' "$size_text"
+if [ "$built" = 0 ]; then
+  figure '`scripts/images.sh` again, nothing changed (smoke test included)' "$(($(date +%s) - t_all)) s"
+fi
+if [ "${IMAGES_DOC:-1}" != 0 ]; then
+  doc_rows docs/DEPLOY.md images scripts/images.sh <"$figures"
+fi

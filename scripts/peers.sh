@@ -13,14 +13,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${FACEPOSE_DATA:-../shared/data}
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
 VENV=target/peers-venv
-if ! "$VENV/bin/python" -c 'import cv2, numpy' 2>/dev/null; then
-    echo "== making $VENV (opencv-python-headless, numpy)" >&2
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check \
-        'opencv-python-headless>=4.10,<6' 'numpy>=1.26,<3'
-fi
-echo "== building (release)" >&2
-cargo build --release --locked --quiet --bin facepose
-"$VENV/bin/python" scripts/peers.py target/release/facepose "$DATA/aflw2000/aflw2000_dev.jsonl" \
+venv_ensure --check 'import cv2, numpy' "$VENV" 'opencv-python-headless>=4.10,<6' 'numpy>=1.26,<3'
+release_build
+"$VENV/bin/python" scripts/peers.py "$BIN" "$DATA/aflw2000/aflw2000_dev.jsonl" \
     models/default/model.json "${1:-docs/results/peers.md}"

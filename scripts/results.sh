@@ -29,7 +29,11 @@ tmp="$(mktemp)"
 trap 'rm -f "$tmp"' EXIT
 mkdir -p docs/results
 
-cargo build --release --quiet
+# The release binary, built once: exported as FACEPOSE_BIN, so that scripts/peers.sh and
+# scripts/detector-report.sh use it without building again.
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+release_build
 
 # Runs a command, echoing it first; stdout to the given file.
 run() {

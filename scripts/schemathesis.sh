@@ -30,19 +30,21 @@ VENV_ABS="$PWD/$VENV"
 OUT=target/schemathesis
 # What counts as accepting a valid request (422 too; the file says why).
 CONFIG="$PWD/scripts/schemathesis.toml"
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+# shellcheck source=scripts/lib/server.sh
+. scripts/lib/server.sh
 WORK=$(mktemp -d)
-PID=""
-trap 'if [ -n "$PID" ]; then kill "$PID" 2>/dev/null || true; wait "$PID" 2>/dev/null || true; fi; rm -rf "$WORK"' EXIT
+trap 'server_stop; rm -rf "$WORK"' EXIT
 
-if [ ! -x "$VENV/bin/schemathesis" ] ||
-    [ "$("$VENV/bin/python" -c 'import importlib.metadata as m; print(m.version("schemathesis"))' 2>/dev/null)" != "$SCHEMATHESIS_VERSION" ]; then
-    echo "== installing schemathesis $SCHEMATHESIS_VERSION in $VENV"
-    [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
-    "$VENV/bin/pip" install -q --disable-pip-version-check "schemathesis==$SCHEMATHESIS_VERSION"
-fi
+venv_ensure --check 'import schemathesis' "$VENV" "schemathesis==$SCHEMATHESIS_VERSION"
 
-# The server: scripts/serve-for-test.sh (sets BIN, TOKEN, BASE, PID, ...).
-. scripts/serve-for-test.sh
+# The server, with a temporary models folder and admin token (sets BIN, TOKEN, BASE, PID, ...).
+release_build
+server_admin_files "$WORK"
+server_start "$WORK/server.log" --log warn --models "$MODELS" --admin-token-file "$TOKENFILE"
 
 rm -rf "$OUT/report"
 mkdir -p "$OUT/report"

@@ -21,5 +21,13 @@ if ! command -v wrk >/dev/null 2>&1; then
         { $SUDO apt-get update >/dev/null && $SUDO apt-get install -y wrk >/dev/null; }
 fi
 
-. scripts/release-and-venv.sh
+# The release binary (exported as FACEPOSE_BIN, which the Python side runs) and the venv
+# with the h2 package, which frames the gRPC calls.
+# shellcheck source=scripts/lib/release.sh
+. scripts/lib/release.sh
+# shellcheck source=scripts/lib/venv.sh
+. scripts/lib/venv.sh
+release_build
+VENV=target/abuse-venv
+venv_ensure --check 'import h2' "$VENV" 'h2>=4,<5'
 exec "$VENV/bin/python" scripts/soak.py "$@"
