@@ -140,13 +140,16 @@ def main() -> int:
     @check("POST /v1/pose:batch: real faces and one bad face")
     def _():
         batch = moderate[:8]
-        bad = [[100.0, 100.0]] * 5  # five points in the default scheme, ibug68
+        # Five points in a batch named ibug68 (unnamed, 5 points would be five or dlib5, and
+        # the error would ask for the scheme instead).
+        bad = [[100.0, 100.0]] * 5
         body = BatchRequest(
             faces=[
                 BatchFace(landmarks=f["landmarks_reannotated"], id=i) for i, f in enumerate(batch)
             ]
             + [BatchFace(landmarks=bad, id="bad")],
             method="fit-shape",
+            scheme="ibug68",
         )
         r = pose_batch.sync(client=anon, body=body)
         assert isinstance(r, BatchResponse), r

@@ -19,12 +19,8 @@ DATA=${FACEPOSE_DATA:-../shared/data}
 DATA=$(cd "$DATA" && pwd)
 export FACEPOSE_DATA=$DATA
 VENV=target/python-bench-venv
-if ! "$VENV/bin/python" -c 'import cv2, numpy' 2>/dev/null; then
-    echo "== making $VENV (opencv-python-headless, numpy)" >&2
-    python3 -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check \
-        'opencv-python-headless>=4.10,<6' 'numpy>=1.26,<3'
-fi
+. scripts/lib/venv.sh
+venv_ensure --check 'import cv2, numpy' "$VENV" 'opencv-python-headless>=4.10,<6' 'numpy>=1.26,<3'
 # The package's cargo folder is scripts/python-test.sh's (CARGO_TARGET_DIR, if set, is kept).
 PY_TARGET=${CARGO_TARGET_DIR:-$PWD/target/python}
 if [ "${1:-}" != "--no-install" ] || ! "$VENV/bin/python" -c 'import facepose' 2>/dev/null; then

@@ -16,14 +16,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=target/python-venv
 PIP=("$VENV/bin/pip" --quiet --disable-pip-version-check)
-if ! "$VENV/bin/python" -c 'import numpy, pytest' 2>/dev/null; then
-    echo "== making $VENV (numpy, pytest)" >&2
-    rm -rf "$VENV"
-    if ! python3 -m venv "$VENV" || ! "${PIP[@]}" install 'numpy>=1.21' 'pytest>=7'; then
-        echo "cannot make $VENV (python3 -m venv, numpy and pytest from PyPI)" >&2
-        exit 3
-    fi
-fi
+. scripts/lib/venv.sh
+venv_ensure --check 'import numpy, pytest' "$VENV" 'numpy>=1.21' 'pytest>=7' || {
+    echo "cannot make $VENV (python3 -m venv, numpy and pytest from PyPI)" >&2
+    exit 3
+}
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target/python}
 # .ci/run makes clippy-driver the compiler of the root workspace's crates; not of this build.
 unset RUSTC_WORKSPACE_WRAPPER CLIPPY_ARGS

@@ -21,20 +21,12 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${FACEPOSE_DATA:-../shared/data}
 VENV=target/render-venv
-PY=${PYTHON:-python3}
-if ! "$VENV/bin/python" -c 'import dlib, face_recognition_models, mediapipe, skimage' 2>/dev/null; then
-    if ! "$PY" -c 'import sys; sys.exit(not (3, 8) <= sys.version_info[:2] <= (3, 12))'; then
-        echo "mediapipe 0.10.14 has wheels for CPython 3.8-3.12 only; $PY is $("$PY" -V 2>&1)." >&2
-        echo "Set PYTHON to another interpreter." >&2
-        exit 2
-    fi
-    echo "== making $VENV" >&2
-    "$PY" -m venv "$VENV"
-    "$VENV/bin/pip" install --quiet --disable-pip-version-check \
-        'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' \
-        'dlib-bin==20.0.1.post1' 'face-recognition-models==0.3.0' 'scikit-image>=0.24,<0.27' \
-        setuptools
-fi
+. scripts/lib/venv.sh
+venv_ensure --python "${PYTHON:-python3}" --requires-python 3.8-3.12 \
+    --check 'import dlib, face_recognition_models, mediapipe, skimage' "$VENV" \
+    'mediapipe==0.10.14' 'numpy==1.26.4' 'opencv-contrib-python==4.11.0.86' \
+    'dlib-bin==20.0.1.post1' 'face-recognition-models==0.3.0' 'scikit-image>=0.24,<0.27' \
+    setuptools
 WHEELS=target/render-wheels
 WHEEL=$(ls "$WHEELS"/insightface-*.whl 2>/dev/null | head -n1 || true)
 if [ -z "$WHEEL" ]; then
