@@ -55,12 +55,14 @@ paper_cmd="cargo run --release -- eval --protocol paper --out docs/results/paper
 real_cmd="cargo run --release -- eval --protocol real --out docs/results/real"
 mp_cmd="cargo run --release -- eval --protocol mediapipe"
 track_cmd="cargo run --release -- eval --protocol tracking"
+rendered_cmd="cargo run --release -- eval --protocol rendered"
 hpr_cmd="cargo run --release -- hpr"
 sfm_cmd="cargo run --release -- eval-sfm"
 run /dev/null "$paper_cmd"
 run /dev/null "$real_cmd"
 run docs/results/mediapipe.md "$mp_cmd"
 run docs/results/tracking.md "$track_cmd"
+run docs/results/rendered.md "$rendered_cmd"
 run docs/results/hpr.md "$hpr_cmd"
 run docs/results/sfm.md "$sfm_cmd"
 peers_cmd="scripts/peers.sh"
@@ -127,6 +129,9 @@ EOF
 - Turned by 40°, the face is beyond what dlib's 68-point predictor follows (see its roll on `rotated-40`); MediaPipe's points follow both turns.
 - The LFW faces are 25 pixels wide, upscaled 8 times: both detectors are coarse there, dlib's five points most.
 EOF
+  printf '\n## Rendered benchmark: detector landmarks (issue 37)\n\n'
+  cmd_block "$rendered_cmd"
+  sed -e '/^## /d' docs/results/rendered.md
   printf '\n## Hidden-point removal\n\n'
   cmd_block "$hpr_cmd"
   cat docs/results/hpr.md
