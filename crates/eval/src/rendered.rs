@@ -235,6 +235,9 @@ pub fn procrustes_offset(pairs: &[(Rotation3<f64>, Rotation3<f64>)]) -> Rotation
     nearest_rotation(&m)
 }
 
+/// (estimate, truth).
+type Pair = (Rotation3<f64>, Rotation3<f64>);
+
 /// One (input, method, split, geometry, scoring) cell.
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderedRow {
@@ -464,8 +467,7 @@ pub fn rendered_protocol(
     for (det, method, v) in &answers {
         // Per render: (scored absolute, scored with its identity's offset removed).
         let mut offsets: BTreeMap<(&str, &str), (Rotation3<f64>, f64)> = BTreeMap::new();
-        let mut groups: BTreeMap<(&str, &str), Vec<(Rotation3<f64>, Rotation3<f64>)>> =
-            BTreeMap::new();
+        let mut groups: BTreeMap<(&str, &str), Vec<Pair>> = BTreeMap::new();
         for (r, a) in statics.iter().zip(v) {
             if let Some(a) = a {
                 groups
@@ -931,7 +933,7 @@ pub fn trajectories_markdown(report: &RenderedReport, pooled: bool) -> String {
             format!("{} ({}, {}, {})", r.identity, r.split, r.geometry, r.camera)
         };
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} / {} | {} | {} | {} |\n",
+            "| {} | {} | {} | {} | {} / {} | {} | {} | {:.3} |\n",
             r.trajectory,
             who,
             r.detector,
@@ -940,7 +942,7 @@ pub fn trajectories_markdown(report: &RenderedReport, pooled: bool) -> String {
             r.frames,
             f2(r.rms_error),
             f2(r.mean_error),
-            format!("{:.3}", r.jitter),
+            r.jitter,
         ));
     }
     out
