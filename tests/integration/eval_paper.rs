@@ -255,6 +255,9 @@ fn eval_all_writes_the_report_and_its_plots() {
         "## Real faces",
         "| fit | reannotated |",
         "![Error against yaw](real-error-by-yaw.png)",
+        "## Rendered benchmark: detector landmarks (issue 37)",
+        "| oracle68 | fit |",
+        "| mediapipe478 | mediapipe-matrix |",
     ] {
         assert!(
             report.contains(needle),
@@ -283,5 +286,10 @@ fn eval_all_writes_the_report_and_its_plots() {
     );
     // fit on the four landmark sets, geometry on three (dlib5 names no nose tip or mouth).
     assert!(json["real"].as_array().is_some_and(|r| r.len() == 7));
+    assert!(
+        json["rendered"]["rows"]
+            .as_array()
+            .is_some_and(|r| !r.is_empty())
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -166,3 +166,90 @@ pub fn parse_multi_view(text: &str) -> Result<MultiViewSet, String> {
         subjects,
     })
 }
+
+/// One render of the rendered ground-truth benchmark (`tests/fixtures/rendered/`, its README
+/// describes every field): the truth, the camera, the oracle's exact 68 points and what the
+/// detectors found. Fields the evaluation does not use (degradations, texture stretch) are
+/// left out.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedRecord {
+    pub id: String,
+    /// `grid`, `random`, `trajectory` or `identity`.
+    pub set: String,
+    pub identity: String,
+    /// `train` or `test`.
+    pub split: String,
+    /// `bfm` (absolute truth) or `mediapipe` (truth up to a constant rotation per identity).
+    pub geometry: String,
+    pub truth_absolute: bool,
+    /// `[width, height]`, pixels.
+    pub image_size: [f64; 2],
+    pub camera: RenderedCamera,
+    pub truth: RenderedTruth,
+    pub trajectory: Option<RenderedFrame>,
+    pub oracle: RenderedOracle,
+    pub dlib: Option<RenderedDlib>,
+    pub mediapipe: Option<RenderedMediaPipe>,
+}
+
+/// The render's camera (`ortho` or `perspective`; the intrinsics of a perspective one).
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedCamera {
+    pub kind: String,
+    pub fx: Option<f64>,
+    pub fy: Option<f64>,
+    pub cx: Option<f64>,
+    pub cy: Option<f64>,
+}
+
+/// The true pose: Pose_Para angles (degrees) and the rotation, row-major.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedTruth {
+    pub pitch: f64,
+    pub yaw: f64,
+    pub roll: f64,
+    pub rotation: [[f64; 3]; 3],
+}
+
+/// A trajectory frame.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedFrame {
+    pub id: String,
+    pub frame: usize,
+    pub timestamp_us: i64,
+    pub fps: f64,
+}
+
+/// The exact projection of the rendered mesh's 68 ibug points (continuous pixel coordinates)
+/// and which of them the z-buffer sees (`1`/`0` per point).
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedOracle {
+    pub ibug68: Vec<[f64; 2]>,
+    pub visible: String,
+    pub weak_perspective_deg: f64,
+}
+
+/// dlib's detection: integer pixel indices, as dlib gives them.
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedDlib {
+    pub ibug68: Vec<[f64; 2]>,
+    pub dlib5: Vec<[f64; 2]>,
+    pub score: f64,
+}
+
+/// MediaPipe's detection: 478 points normalized by the image's width and height, and its own
+/// facial transformation matrix (row-major 4x4).
+#[derive(Debug, Clone, Deserialize)]
+pub struct RenderedMediaPipe {
+    pub landmarks: Vec<[f64; 2]>,
+    pub facial_transformation_matrix: [[f64; 4]; 4],
+}
+
+/// The records of one JSON Lines text (blank lines skipped); errors name the line.
+pub fn parse_rendered_lines(text: &str) -> Result<Vec<RenderedRecord>, String> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| parse(l).map_err(|e| format!("line {}: {e}", i + 1)))
+        .collect()
+}

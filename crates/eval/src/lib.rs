@@ -12,6 +12,7 @@ pub mod mesh;
 pub mod paper;
 pub mod plot;
 pub mod progress;
+pub mod rendered;
 pub mod sfm_check;
 pub mod tracking;
 pub mod uncertainty;

@@ -3,4 +3,5 @@
 //! folder (versions, the `ACTIVE` pointer, job records) builds on [`store`].
 
 pub mod data;
+pub mod rendered;
 pub mod store;
