@@ -18,8 +18,8 @@
 
 use facepose_app::estimate::{FaceInput, FaceScratch};
 use facepose_app::pose::{FaceSpec, estimate_face};
-use facepose_app::tracking::Smoothed;
 use facepose_app::registry::load_models;
+use facepose_app::tracking::Smoothed;
 use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
@@ -27,8 +27,8 @@ use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_files::data::{data_dir, load_aflw};
-use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::convert::pose_message;
+use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::landmark_messages;
 use facepose_service::http::body_guard::{BodyGuard, BodyKind};
 use facepose_service::http::pose::parse_pose_request;
