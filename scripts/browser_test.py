@@ -352,6 +352,56 @@ def main():
                         + (f", noise {noise} px, {missing}% missing" if noise or missing else ""))
                 checks.run(name, explorer(pose, scheme, noise, missing, tol))
 
+            def convention(choice, expect_name):
+                """The selector's choice goes into the request shown, and the numbers shown are
+                the API's answer to that request in that convention."""
+                def check():
+                    page.click("#tab-explore")
+                    page.select_option("#scheme", "ibug68")
+                    page.select_option("#method", "auto")
+                    for name, v in (("yaw", 25), ("pitch", -8), ("roll", 6), ("noise", 0), ("missing", 0)):
+                        set_number(page, name, v)
+                    page.select_option("#convention", choice)
+                    run_and_wait(page, "#run-explore")
+                    angles, body, error = shown(page)
+                    assert error is None, error
+                    name, _, preset = choice.partition(":")
+                    want = {"name": name, "preset": preset} if preset else name
+                    assert body.get("conventions") == [want], body
+                    values = page.locator("#conv-values")
+                    assert page.locator("#conv-answer").is_visible(), "no answer in the convention shown"
+                    assert values.get_attribute("data-convention") == expect_name
+                    shown_values = json.loads(values.get_attribute("data-values"))
+                    answer = assert_same_as_api(base, angles, body, (25, -8, 6), 1.0)
+                    a = answer["conventions"][expect_name]
+                    api = {
+                        "quaternion": lambda: [a["w"], a["x"], a["y"], a["z"]],
+                        "euler": lambda: a["angles"],
+                        "opencv": lambda: a["rvec"] + a["tvec"],
+                        "mediapipe": lambda: [v for row in a["matrix"] for v in row],
+                    }[expect_name]()
+                    assert len(shown_values) == len(api), (shown_values, api)
+                    for x, y in zip(shown_values, api):
+                        assert abs(x - y) <= 1e-9 * (1 + abs(y)), f"the page shows {shown_values}, the API answers {api}"
+                    cells = [c.text_content() for c in values.locator("span").all()]
+                    assert cells == [f"{v:.4f}" for v in api] or len(cells) == len(api), cells
+                    code = page.locator("#conv-code").text_content()
+                    assert "answer.conventions." + expect_name in code and "Python" in code, code
+                    return f"{expect_name}: {', '.join(cells[:4])}{' …' if len(cells) > 4 else ''}"
+                return check
+
+            for choice, expect_name in [
+                ("quaternion", "quaternion"),
+                ("euler:openface", "euler"),
+                ("euler:three", "euler"),
+                ("euler:unity", "euler"),
+                ("euler:pose-para", "euler"),
+                ("opencv", "opencv"),
+                ("mediapipe", "mediapipe"),
+            ]:
+                checks.run(f"convention selector: {choice} shows the API's numbers", convention(choice, expect_name))
+            page.select_option("#convention", "")
+
             def paste(text, scheme, truth, tol, normalized=None, size=None):
                 page.click("#tab-paste")
                 page.fill("#paste", text)

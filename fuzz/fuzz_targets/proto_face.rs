@@ -2,9 +2,12 @@
 //! code for the same `.proto`: the same messages accepted, the same values read. And the
 //! codec's walk before decoding never panics on any bytes; the guard that checks a call's
 //! body as it arrives gives the same verdict however the body is cut, and agrees with the
-//! codec's walk on a message within its limits.
+//! codec's walk on a message within its limits. A face that decodes is then read as the
+//! estimator takes it (`FaceInput::spec`): its landmarks, and its conventions and camera
+//! orientation (`Face.conventions`, `Face.camera_orientation`) parsed, never panicking.
 #![no_main]
 
+use facepose_app::estimate::{FaceInput, FaceScratch};
 use facepose_service::grpc::codec::{Bounded, DecodeLimits};
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::proto;
@@ -32,6 +35,15 @@ fn same_face(a: &proto::Face, b: &reference::Face) {
         (&b.scheme, &b.method, &b.id, &b.landmark_style)
     );
     assert_eq!(a.camera.is_some(), b.camera.is_some());
+    // Prost-derived on both sides, maps as BTreeMaps: the same values encode the same.
+    assert_eq!(a.conventions.len(), b.conventions.len());
+    for (p, q) in a.conventions.iter().zip(&b.conventions) {
+        assert_eq!(p.encode_to_vec(), q.encode_to_vec());
+    }
+    assert_eq!(
+        a.camera_orientation.as_ref().map(Message::encode_to_vec),
+        b.camera_orientation.as_ref().map(Message::encode_to_vec)
+    );
 }
 
 /// The guard's verdict on `data` as one uncompressed message of `rpc`, fed in `chunk`s.
@@ -67,7 +79,11 @@ fuzz_target!(|data: &[u8]| {
     let ours = proto::Face::decode(data);
     let theirs = reference::Face::decode(data);
     match (&ours, &theirs) {
-        (Ok(a), Ok(b)) => same_face(a, b),
+        (Ok(a), Ok(b)) => {
+            same_face(a, b);
+            let mut scratch = FaceScratch::default();
+            let _ = a.spec(&mut scratch);
+        }
         (Err(_), Err(_)) => {}
         _ => panic!(
             "hand-coded {:?} but prost {:?}",

@@ -8,6 +8,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use facepose_core::geometry::convention::ConventionRequest;
+
 use crate::blocking::run_maybe_blocking;
 use crate::error::ServiceError;
 use crate::metrics::{FaceTally, Metrics, Transport};
@@ -16,16 +18,25 @@ use crate::registry::{ModelSet, ServedModel};
 use crate::tracking::{Filter, Session, Smoothed, track_key};
 use crate::{App, Limits, StreamPermit};
 
+/// What a transport may convert a face's values into before the estimator borrows them,
+/// reused across a batch's faces. Empty, it holds no memory: a face that needs none of it
+/// costs no allocation.
+#[derive(Debug, Default)]
+pub struct FaceScratch {
+    /// The landmarks, for a transport whose landmarks need converting (gRPC's messages).
+    pub points: Vec<Option<[f64; 2]>>,
+    /// The conventions asked for, for a transport that parses them per face (gRPC's, whose
+    /// messages keep their names and parameters as strings).
+    pub conventions: Vec<ConventionRequest>,
+}
+
 /// A face as a transport decoded it.
 pub trait FaceInput {
-    /// The face as the estimator takes it. `points` is scratch, reused across a batch's faces,
-    /// for a transport whose landmarks need converting first (gRPC's messages); a transport
-    /// that holds them as they are (HTTP's JSON) ignores it. Fails for landmarks that cannot be
-    /// read: that face's own error.
-    fn spec<'a>(
-        &'a self,
-        points: &'a mut Vec<Option<[f64; 2]>>,
-    ) -> Result<FaceSpec<'a>, ServiceError>;
+    /// The face as the estimator takes it. `scratch` is reused across a batch's faces, for a
+    /// transport whose values need converting first (gRPC's messages); a transport that holds
+    /// them as they are (HTTP's JSON) ignores it. Fails for landmarks or conventions that
+    /// cannot be read: that face's own error.
+    fn spec<'a>(&'a self, scratch: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError>;
 
     /// The client's id of the face's track in a stream ("" when it has none).
     fn track_id(&self) -> &str {
@@ -86,9 +97,9 @@ impl App {
         face: &impl FaceInput,
     ) -> Result<Answer, ServiceError> {
         let model = self.models().get(model)?.clone();
-        let mut points = Vec::new();
+        let mut scratch = FaceScratch::default();
         let outcome = face
-            .spec(&mut points)
+            .spec(&mut scratch)
             .and_then(|spec| estimate_face(&model, &spec));
         let mut tally = FaceTally::default();
         count(&mut tally, &outcome);
@@ -201,7 +212,7 @@ impl BatchRun {
     ) -> Result<Vec<R>, ServiceError> {
         let faces = faces.into_iter();
         let mut out = Vec::with_capacity(faces.size_hint().0);
-        let mut points = Vec::new();
+        let mut scratch = FaceScratch::default();
         for (i, face) in faces.enumerate() {
             if i % 16 == 15 && self.deadline.is_some_and(|d| Instant::now() > d) {
                 return Err(ServiceError::Timeout {
@@ -209,7 +220,7 @@ impl BatchRun {
                 });
             }
             let outcome = face
-                .spec(&mut points)
+                .spec(&mut scratch)
                 .and_then(|spec| estimate_face(model, &spec));
             count(&mut self.tally, &outcome);
             out.push(answer(face, outcome));
@@ -292,10 +303,10 @@ impl StreamSession {
         };
         let mut tally = FaceTally::default();
         let mut faces = Vec::with_capacity(frame.faces.len());
-        let mut points = Vec::new();
+        let mut scratch = FaceScratch::default();
         for (i, face) in frame.faces.into_iter().enumerate() {
             let mut outcome = model.as_ref().map_err(|e| e.clone()).and_then(|m| {
-                let spec = face.spec(&mut points)?;
+                let spec = face.spec(&mut scratch)?;
                 estimate_face(m, &spec)
             });
             count(&mut tally, &outcome);

@@ -6,6 +6,8 @@
 //! - `reference/facepose.v1.rs`: prost's derived code for every message, those two included, for
 //!   the tests that hold the hand-coded pair to it;
 //! - `facepose_descriptor.bin`: the encoded file descriptor set, for gRPC server reflection;
+//! - maps (`Convention.params`) are `BTreeMap`s, so that a message encodes to the same bytes
+//!   every time (the hand-coded pair's tests compare bytes);
 //! - `SOURCES.sha256`: the digest of the `.proto` files it was made from, which a service test
 //!   compares with the files in `proto/`, so that an edit without a regeneration fails CI.
 //!
@@ -37,6 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tonic_prost_build::configure()
         .build_client(true)
         .build_server(true)
+        .btree_map(".")
         .extern_path(".facepose.v1.Face", "crate::proto::Face")
         .extern_path(".facepose.v1.Pose", "crate::proto::Pose")
         .codec_path("crate::grpc::codec::FaceposeCodec")
@@ -45,6 +48,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     tonic_prost_build::configure()
         .build_client(false)
         .build_server(false)
+        .btree_map(".")
         .out_dir(out.join("reference"))
         .compile_fds(compiler.file_descriptor_set())?;
     std::fs::write(

@@ -16,8 +16,10 @@
 //! of their count, the mean over the faces (they need the shared data: FACEPOSE_DATA, else
 //! ../shared/data).
 
+use facepose_app::estimate::{FaceInput, FaceScratch};
 use facepose_app::pose::{FaceSpec, estimate_face};
 use facepose_app::registry::load_models;
+use facepose_app::tracking::Smoothed;
 use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
@@ -25,6 +27,7 @@ use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_files::data::{data_dir, load_aflw};
+use facepose_service::grpc::convert::pose_message;
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::landmark_messages;
 use facepose_service::http::body_guard::{BodyGuard, BodyKind};
@@ -37,7 +40,7 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 
 /// What can be counted.
-const ENTRIES: [&str; 16] = [
+const ENTRIES: [&str; 17] = [
     "none",
     "fit",
     "fit-shape",
@@ -50,6 +53,7 @@ const ENTRIES: [&str; 16] = [
     "grpc-decode-xy",
     "guard-pose-body",
     "guard-grpc-landmarks",
+    "grpc-estimate-xy",
     "estimate-auto-dev-fitted",
     "estimate-auto-dev-reannotated",
     "estimate-fit-dev-fitted",
@@ -162,6 +166,7 @@ fn main() {
         Some((_, set)) => dev_faces(set),
         None => Vec::new(),
     };
+    let mut scratch = FaceScratch::default();
     for call in 0..calls {
         match what.as_str() {
             "fit" => drop(black_box(
@@ -199,6 +204,16 @@ fn main() {
             "guard-grpc-landmarks" => {
                 let mut g = FrameGuard::new(Rpc::Estimate, 1000).scanning_from(0);
                 drop(black_box(g.feed(black_box(&framed))));
+            }
+            // A gRPC face's whole path without conventions: decode the packed request, the
+            // face's spec (landmarks and conventions from reused scratch), fit, encode the pose.
+            "grpc-estimate-xy" => {
+                let req = proto::EstimateRequest::decode(black_box(packed.as_slice())).unwrap();
+                let face = req.face.unwrap();
+                let spec = face.spec(&mut scratch).unwrap();
+                let pose = estimate_face(&served, &spec).unwrap();
+                let message = pose_message(&pose, Smoothed::default());
+                drop(black_box(message.encode_to_vec()));
             }
             dev_entry if dev_entry.contains("-dev-") => {
                 let method = if dev_entry.starts_with("estimate-auto") {

@@ -176,6 +176,8 @@ fn proto_face(points: &[[f64; 2]], a: &Args) -> proto::Face {
         xy,
         missing: vec![],
         image_size: None,
+        conventions: Vec::new(),
+        camera_orientation: None,
     }
 }
 

@@ -97,5 +97,7 @@ pub fn proto_face(points: &[[f64; 2]], scheme: &str, method: &str, id: &str) -> 
         xy: vec![],
         missing: vec![],
         image_size: None,
+        conventions: Vec::new(),
+        camera_orientation: None,
     }
 }

@@ -7,7 +7,9 @@
 //!   could be checked. Messages from [`SCAN_FROM`] bytes up are first walked without
 //!   allocating ([`Bounded`]): more faces than `--max-batch`, or more points in a face than a
 //!   scheme may have ([`MAX_POINTS`]), and the call ends there, with the status the same limit
-//!   gives after decoding. The walk counts in order, so a message that breaks off after a
+//!   gives after decoding; so are a face's conventions (at most [`MAX_CONVENTIONS`], each
+//!   with at most [`MAX_PARAMS`] parameters, as the camera orientation's Euler angles), whose
+//!   empty map entries are 2 bytes each on the wire. The walk counts in order, so a message that breaks off after a
 //!   million faces is refused for its faces before prost sees it.
 //! - **Big decodes leave the async workers**: from [`OFF_THE_WORKERS_FROM`] bytes up a decode
 //!   runs in `block_in_place`, so a large message does not hold up `/healthz` on its worker.
@@ -28,6 +30,7 @@ use tonic::Status;
 use tonic::codec::{Codec, DecodeBuf, Decoder};
 use tonic_prost::ProstEncoder;
 
+use super::convert::{MAX_CONVENTIONS, MAX_PARAMS};
 use super::error;
 use crate::proto;
 
@@ -158,11 +161,28 @@ fn check_faces(bytes: &[u8], field: u32, limits: &DecodeLimits) -> Result<(), St
 }
 
 /// One `Face`: at most [`MAX_POINTS`] landmarks (field 1), missing indices (field 8) and points
-/// of `xy` (field 7, two doubles each).
+/// of `xy` (field 7, two doubles each); at most [`MAX_CONVENTIONS`] conventions (field 10),
+/// each with at most [`MAX_PARAMS`] parameters (its field 2), as the Euler angles of the camera
+/// orientation (field 11, its field 3, their field 1).
 fn check_face(index: usize, bytes: &[u8]) -> Result<(), Status> {
     let (mut landmarks, mut missing, mut doubles) = (0usize, 0usize, 0usize);
+    let mut conventions = 0usize;
     for_each_field(bytes, |field, value| {
         match (field, value) {
+            (10, Value::Bytes(convention)) => {
+                conventions += 1;
+                if conventions > MAX_CONVENTIONS {
+                    return Err(Status::invalid_argument(format!(
+                        "face {index} has more than {MAX_CONVENTIONS} conventions; name each \
+                         convention at most once"
+                    )));
+                }
+                check_params(index, convention, 2)?;
+            }
+            (11, Value::Bytes(orientation)) => for_each_field(orientation, |f, v| match (f, v) {
+                (3, Value::Bytes(euler)) => check_params(index, euler, 1),
+                _ => Ok(()),
+            })?,
             (1, Value::Bytes(_)) => landmarks += 1,
             (7, Value::Bytes(packed)) => doubles += packed.len() / 8,
             (7, Value::Fixed64) => doubles += 1,
@@ -178,6 +198,23 @@ fn check_face(index: usize, bytes: &[u8]) -> Result<(), Status> {
             return Err(Status::invalid_argument(format!(
                 "face {index} has more than {MAX_POINTS} landmarks, the most a scheme may have"
             )));
+        }
+        Ok(())
+    })
+}
+
+/// A convention (or Euler angles) of face `index` whose parameters are map field `field`: at
+/// most [`MAX_PARAMS`] of them.
+fn check_params(index: usize, bytes: &[u8], field: u32) -> Result<(), Status> {
+    let mut params = 0usize;
+    for_each_field(bytes, |f, value| {
+        if f == field && matches!(value, Value::Bytes(_)) {
+            params += 1;
+            if params > MAX_PARAMS {
+                return Err(Status::invalid_argument(format!(
+                    "face {index} has a convention with more than {MAX_PARAMS} parameters"
+                )));
+            }
         }
         Ok(())
     })
@@ -431,6 +468,44 @@ mod tests {
             ..Default::default()
         };
         assert!(check_face(0, &face_bytes(&ok)).is_ok());
+    }
+
+    fn convention(name: &str, params: usize) -> proto::Convention {
+        proto::Convention {
+            name: name.into(),
+            params: (0..params).map(|i| (format!("p{i}"), "v".into())).collect(),
+        }
+    }
+
+    #[test]
+    fn conventions_and_their_parameters_are_bounded_before_decoding() {
+        let face = |conventions: Vec<proto::Convention>, euler_params: usize| proto::Face {
+            conventions,
+            camera_orientation: Some(proto::CameraOrientation {
+                rotation: Some(proto::camera_orientation::Rotation::Euler(
+                    proto::EulerAngles {
+                        params: convention("", euler_params).params,
+                        angles: vec![0.0; 3],
+                    },
+                )),
+                axes: String::new(),
+            }),
+            ..Default::default()
+        };
+        let most = vec![convention("euler", MAX_PARAMS); MAX_CONVENTIONS];
+        assert!(check_face(0, &face_bytes(&face(most.clone(), MAX_PARAMS))).is_ok());
+        let mut five = most.clone();
+        five.push(convention("quaternion", 0));
+        let refused = [
+            face(five, 0),
+            face(vec![convention("euler", MAX_PARAMS + 1)], 0),
+            face(most, MAX_PARAMS + 1),
+        ];
+        for f in refused {
+            let s = check_face(3, &face_bytes(&f)).unwrap_err();
+            assert_eq!(s.code(), tonic::Code::InvalidArgument, "{s:?}");
+            assert!(s.message().contains("face 3"), "{s:?}");
+        }
     }
 
     proptest! {

@@ -1,16 +1,23 @@
 //! Between the protobuf messages and the application's types: a face's landmarks in either
-//! form, poses, per-face errors, models, versions, jobs.
+//! form, the conventions a face asks for, poses, per-face errors, models, versions, jobs.
 
 use facepose_app::error::ServiceError;
-use facepose_app::estimate::{FaceInput, FaceOutcome};
+use facepose_app::estimate::{FaceInput, FaceOutcome, FaceScratch};
 use facepose_app::jobs::Job;
 use facepose_app::pose::{FacePose, FaceSpec};
 use facepose_app::tracking::Smoothed;
 use facepose_app::views::{ModelView, VersionView};
 use facepose_core::estimate::Intrinsics;
+use facepose_core::geometry::convention::request::check_unique;
+use facepose_core::geometry::convention::{
+    Axes, CameraOrientation, ConventionError, ConventionRequest, EulerSpec,
+};
 use facepose_core::model::validate::ValidationReport;
 use facepose_core::shape::pixels::ImageSize;
-use facepose_records::AngleUncertainty;
+use facepose_records::{
+    AngleUncertainty, ConventionsRecord, EulerRecord, MediaPipeRecord, OpenCvRecord,
+    QuaternionRecord,
+};
 
 use super::error;
 use crate::proto;
@@ -75,14 +82,137 @@ pub fn landmarks_into(
     Ok(())
 }
 
+/// The most conventions a face may ask for: one of each.
+pub const MAX_CONVENTIONS: usize = ConventionRequest::NAMES.len();
+
+/// The most parameters of one convention or of a camera orientation's Euler angles (the Euler
+/// convention has six).
+pub const MAX_PARAMS: usize = 8;
+
+/// A convention error as the client's: INVALID_ARGUMENT, the core's words after the field's.
+fn bad_convention(field: &str, e: ConventionError) -> ServiceError {
+    ServiceError::invalid(format!("{field}: {e}"))
+}
+
+/// `(name, value)` pairs of a message's parameters, at most [`MAX_PARAMS`].
+fn param_pairs<'p>(
+    field: &str,
+    params: &'p std::collections::BTreeMap<String, String>,
+) -> Result<Vec<(&'p str, &'p str)>, ServiceError> {
+    if params.len() > MAX_PARAMS {
+        return Err(ServiceError::invalid(format!(
+            "{field} has {} parameters; a convention has at most {MAX_PARAMS}",
+            params.len()
+        )));
+    }
+    Ok(params
+        .iter()
+        .map(|(k, v)| (k.as_str(), v.as_str()))
+        .collect())
+}
+
+/// The conventions a face asks for (`Face.conventions`), parsed into `out` (reused between
+/// faces); INVALID_ARGUMENT with what to fix for an unknown name, parameter or value, or a
+/// name asked twice. A face that asks for none costs a length check.
+pub fn conventions_into(
+    face: &proto::Face,
+    out: &mut Vec<ConventionRequest>,
+) -> Result<(), ServiceError> {
+    out.clear();
+    if face.conventions.is_empty() {
+        return Ok(());
+    }
+    if face.conventions.len() > MAX_CONVENTIONS {
+        return Err(ServiceError::invalid(format!(
+            "Face.conventions has {} items; name each convention at most once (there are \
+             {MAX_CONVENTIONS}: {})",
+            face.conventions.len(),
+            ConventionRequest::NAMES.join(", ")
+        )));
+    }
+    for (i, c) in face.conventions.iter().enumerate() {
+        let field = format!("Face.conventions[{i}]");
+        let params = param_pairs(&field, &c.params)?;
+        out.push(
+            ConventionRequest::parse(&c.name, &params).map_err(|e| bad_convention(&field, e))?,
+        );
+    }
+    check_unique(out).map_err(|e| bad_convention("Face.conventions", e))
+}
+
+/// The camera's orientation a face gives (`Face.camera_orientation`), if any; INVALID_ARGUMENT
+/// with what to fix when it is not a rotation or its parameters are bad.
+pub fn camera_orientation(face: &proto::Face) -> Result<Option<CameraOrientation>, ServiceError> {
+    use proto::camera_orientation::Rotation;
+    let Some(o) = &face.camera_orientation else {
+        return Ok(None);
+    };
+    let field = "Face.camera_orientation";
+    let axes = if o.axes.is_empty() {
+        Axes::FACEPOSE
+    } else {
+        Axes::parse(&o.axes).map_err(|e| bad_convention(&format!("{field}.axes"), e))?
+    };
+    let orientation = match &o.rotation {
+        None => {
+            return Err(ServiceError::invalid(format!(
+                "{field} has no rotation: set one of matrix, quaternion or euler"
+            )));
+        }
+        Some(Rotation::Matrix(m)) => {
+            let v = &m.values;
+            if v.len() != 9 {
+                return Err(ServiceError::invalid(format!(
+                    "{field}.matrix has {} values: it needs 9, the 3x3 matrix row-major",
+                    v.len()
+                )));
+            }
+            CameraOrientation::from_rows(
+                [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]],
+                axes,
+            )
+        }
+        Some(Rotation::Quaternion(q)) => {
+            CameraOrientation::from_quaternion(q.w, q.x, q.y, q.z, axes)
+        }
+        Some(Rotation::Euler(e)) => {
+            if !o.axes.is_empty() {
+                return Err(ServiceError::invalid(format!(
+                    "{field}: with euler, give the axes among its params (\"axes\": {:?}), not in \
+                     CameraOrientation.axes",
+                    o.axes
+                )));
+            }
+            let &[a, b, c] = e.angles.as_slice() else {
+                return Err(ServiceError::invalid(format!(
+                    "{field}.euler has {} angles: it needs 3, in the order's letters",
+                    e.angles.len()
+                )));
+            };
+            let params = param_pairs(&format!("{field}.euler"), &e.params)?;
+            EulerSpec::from_params(&params)
+                .and_then(|spec| CameraOrientation::from_euler(&spec, [a, b, c]))
+        }
+    };
+    orientation.map(Some).map_err(|e| bad_convention(field, e))
+}
+
 impl FaceInput for proto::Face {
-    /// Its landmarks, in either form, converted into `points`.
-    fn spec<'a>(
-        &'a self,
-        points: &'a mut Vec<Option<[f64; 2]>>,
-    ) -> Result<FaceSpec<'a>, ServiceError> {
+    /// Its landmarks, in either form, converted into the scratch's points, and its conventions
+    /// parsed into the scratch's (nothing for a face that asks for none).
+    fn spec<'a>(&'a self, scratch: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
+        let FaceScratch {
+            points,
+            conventions,
+        } = scratch;
         landmarks_into(self, points)?;
-        Ok(face_spec(self, points))
+        conventions_into(self, conventions)?;
+        let orientation = camera_orientation(self)?;
+        Ok(FaceSpec {
+            conventions,
+            orientation,
+            ..face_spec(self, points)
+        })
     }
 
     fn track_id(&self) -> &str {
@@ -106,7 +236,8 @@ pub fn face_result(
     }
 }
 
-/// The transport-neutral face of a proto face whose landmarks are `points`.
+/// The transport-neutral face of a proto face whose landmarks are `points`, without its
+/// conventions (see [`FaceInput::spec`]).
 pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> FaceSpec<'a> {
     FaceSpec {
         landmarks: points,
@@ -123,7 +254,7 @@ pub fn face_spec<'a>(face: &'a proto::Face, points: &'a [Option<[f64; 2]>]) -> F
             width: s.width,
             height: s.height,
         }),
-        // The proto has no conventions yet (issue 39's gRPC part).
+        // Parsed by `FaceInput::spec`, which holds them.
         conventions: &[],
         orientation: None,
     }
@@ -158,6 +289,51 @@ pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
             }
         }),
         gated: smoothing.gated,
+        conventions: r.conventions.as_ref().map(conventions_message),
+    }
+}
+
+/// The answers in the caller's conventions, one field per name asked for.
+pub fn conventions_message(c: &ConventionsRecord) -> proto::Conventions {
+    let flat = |m: &[[f64; 3]; 3]| m.iter().flatten().copied().collect::<Vec<_>>();
+    proto::Conventions {
+        quaternion: c
+            .quaternion
+            .map(|QuaternionRecord { w, x, y, z }| proto::Quaternion { w, x, y, z }),
+        euler: c
+            .euler
+            .as_ref()
+            .map(|e: &EulerRecord| proto::EulerConvention {
+                angles: e.angles.to_vec(),
+                order: e.order.clone(),
+                kind: e.kind.clone(),
+                units: e.units.clone(),
+                axes: e.axes.clone(),
+                matrices: e.matrices.clone(),
+                matrix: flat(&e.matrix),
+                near_gimbal_lock: e.near_gimbal_lock,
+            }),
+        opencv: c
+            .opencv
+            .as_ref()
+            .map(|o: &OpenCvRecord| proto::OpenCvConvention {
+                rvec: o.rvec.to_vec(),
+                tvec: o.tvec.to_vec(),
+                rotation: flat(&o.rotation),
+                camera_matrix: flat(&o.camera_matrix),
+                camera_assumed: o.camera_assumed,
+                object_frame: o.object_frame.clone(),
+            }),
+        mediapipe: c
+            .mediapipe
+            .as_ref()
+            .map(|m: &MediaPipeRecord| proto::MediaPipeConvention {
+                matrix: m.matrix.iter().flatten().copied().collect(),
+                data: m.data.clone(),
+                rows: m.rows as u32,
+                columns: m.columns as u32,
+                vertical_fov_deg: m.vertical_fov_deg,
+            }),
     }
 }
 

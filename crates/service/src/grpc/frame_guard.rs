@@ -1,7 +1,8 @@
 //! The limits of the pose calls' messages checked on their bytes as they arrive, before a
 //! message is whole: the faces of an `EstimateBatch` request or a stream `Frame`
-//! (`--max-batch`), the landmarks of a face (a scheme's 1000 points at most) and the length of
-//! any name. tonic buffers a whole message before the codec sees it, so the codec's walk
+//! (`--max-batch`), the landmarks of a face (a scheme's 1000 points at most), its conventions
+//! (4 at most, each and the camera orientation within a name's length) and the length of any
+//! name. tonic buffers a whole message before the codec sees it, so the codec's walk
 //! ([`super::codec::Bounded`]) bounds what a message costs decoded but not the message itself:
 //! four callers sending 8 MiB of empty faces held 32 MiB. Here the call ends at the byte that
 //! crosses a limit, with the status the codec would give.
@@ -22,6 +23,7 @@ use http_body::{Frame, SizeHint};
 use tonic::Status;
 
 use super::codec::{SCAN_FROM, marked};
+use super::convert::MAX_CONVENTIONS;
 use super::error;
 
 /// The most bytes of a string field of a pose message: far above any name (64 characters) or
@@ -103,6 +105,8 @@ pub struct FrameGuard {
     landmarks: usize,
     doubles: u64,
     missing: u64,
+    /// Conventions of the current face.
+    conventions: usize,
     /// The status to end the call with, once a limit is crossed.
     breach: Option<Status>,
     /// Messages shorter than this are passed over.
@@ -126,6 +130,7 @@ impl FrameGuard {
             landmarks: 0,
             doubles: 0,
             missing: 0,
+            conventions: 0,
             breach: None,
             scan_from: SCAN_FROM as u64,
         }
@@ -333,6 +338,19 @@ impl FrameGuard {
                 }
                 8 => skip(true),
                 2 | 3 | 5 | 6 => self.string(len),
+                // A convention, or the camera orientation: a few names and numbers.
+                10 => {
+                    self.conventions += 1;
+                    if self.conventions > MAX_CONVENTIONS && self.breach.is_none() {
+                        self.breach = Some(marked(Status::invalid_argument(format!(
+                            "face {} has more than {MAX_CONVENTIONS} conventions; name each \
+                             convention at most once",
+                            self.faces.saturating_sub(1)
+                        ))));
+                    }
+                    self.string(len)
+                }
+                11 => self.string(len),
                 _ => skip(false),
             }
         } else if field == faces_field {
@@ -344,6 +362,7 @@ impl FrameGuard {
                 })));
             }
             (self.landmarks, self.doubles, self.missing) = (0, 0, 0);
+            self.conventions = 0;
             self.open.push(Open { end, face: true });
             Step::Key
         } else if field == model_field {
@@ -522,6 +541,51 @@ mod tests {
             let s = Rpc::EstimateStream;
             assert_eq!(v(s, 3, &[frame(3), frame(3), frame(0)]), Ok(()));
             assert_eq!(v(s, 3, &[frame(3), frame(4)]), Err(Code::ResourceExhausted));
+        }
+    }
+
+    #[test]
+    fn conventions_are_counted_and_their_bytes_bounded() {
+        let with = |names: &[&str], name_len: usize| proto::Face {
+            conventions: names
+                .iter()
+                .map(|n| proto::Convention {
+                    name: n.repeat(name_len),
+                    params: [("order".to_string(), "zyx".to_string())].into(),
+                })
+                .collect(),
+            camera_orientation: Some(proto::CameraOrientation {
+                axes: "RDF".into(),
+                ..Default::default()
+            }),
+            ..face(68, 0, "")
+        };
+        let four = ["quaternion", "euler", "opencv", "mediapipe"];
+        for chunk in [1, 5, 4096] {
+            let v = |f: proto::Face| {
+                verdict(
+                    Rpc::EstimateBatch,
+                    4,
+                    &body(&[batch(vec![face(5, 0, ""), f], "")]),
+                    chunk,
+                )
+            };
+            assert_eq!(v(with(&four, 1)), Ok(()));
+            assert_eq!(v(with(&[four[0]; 5], 1)), Err(Code::InvalidArgument));
+            assert_eq!(
+                v(with(&["e"], MAX_STRING as usize + 1)),
+                Err(Code::InvalidArgument)
+            );
+            // Counted per face: two faces of four each pass.
+            assert_eq!(
+                verdict(
+                    Rpc::EstimateBatch,
+                    4,
+                    &body(&[batch(vec![with(&four, 1); 2], "")]),
+                    chunk
+                ),
+                Ok(())
+            );
         }
     }
 

@@ -10,7 +10,7 @@ use axum::extract::{Request, State};
 use axum::response::Response;
 use facepose_app::App;
 use facepose_app::error::ServiceError;
-use facepose_app::estimate::{BatchRun, BatchSize, FaceInput, INLINE_BYTES};
+use facepose_app::estimate::{BatchRun, BatchSize, FaceInput, FaceScratch, INLINE_BYTES};
 use facepose_app::metrics::Transport;
 use facepose_app::pose::FaceSpec;
 use facepose_core::estimate::Intrinsics;
@@ -32,10 +32,7 @@ use super::wire::{
 };
 
 impl FaceInput for PoseRequest {
-    fn spec<'a>(
-        &'a self,
-        _points: &'a mut Vec<Option<[f64; 2]>>,
-    ) -> Result<FaceSpec<'a>, ServiceError> {
+    fn spec<'a>(&'a self, _: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
         Ok(FaceSpec {
             landmarks: &self.landmarks.0,
             scheme: self.scheme.as_deref(),
@@ -67,10 +64,7 @@ struct BatchItem<'r> {
 }
 
 impl FaceInput for BatchItem<'_> {
-    fn spec<'a>(
-        &'a self,
-        _points: &'a mut Vec<Option<[f64; 2]>>,
-    ) -> Result<FaceSpec<'a>, ServiceError> {
+    fn spec<'a>(&'a self, _: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
         let (f, d) = (&self.face, self.defaults);
         Ok(FaceSpec {
             landmarks: &f.landmarks.0,

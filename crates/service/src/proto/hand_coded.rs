@@ -14,6 +14,11 @@
 //! The tests hold both types to prost's derived code for the same `.proto` (`facepose-protogen` writes it
 //! to `generated/reference/`), on random messages and on corrupted bytes.
 //!
+//! The conventions a face asks for (`Face.conventions`, `Face.camera_orientation`) and their
+//! answers (`Pose.conventions`) are rare and small: they go through prost's functions for
+//! nested messages as they are, and a face without them costs nothing more (an empty `Vec` and
+//! a `None`, no allocation).
+//!
 //! A field added to `Face` or `Pose` in the `.proto` must be added here. The tests build the
 //! derived types field by field, so they stop compiling until it is.
 
@@ -24,7 +29,10 @@ use prost::encoding::{
 };
 use prost::{DecodeError, Message};
 
-use super::{Camera, ImageSize, Landmark, Translation, Uncertainty};
+use super::{
+    Camera, CameraOrientation, Convention, Conventions, ImageSize, Landmark, Translation,
+    Uncertainty,
+};
 
 /// One face to estimate.
 #[derive(Clone, PartialEq, Default, Debug)]
@@ -49,6 +57,10 @@ pub struct Face {
     pub missing: Vec<u32>,
     /// The image's size: the landmarks are then normalized coordinates (MediaPipe's x, y).
     pub image_size: Option<ImageSize>,
+    /// The conventions to answer in besides facepose's own (at most 4, one per name).
+    pub conventions: Vec<Convention>,
+    /// The camera's orientation in the world, for the conventions' answers.
+    pub camera_orientation: Option<CameraOrientation>,
 }
 
 /// A pose estimate.
@@ -81,6 +93,8 @@ pub struct Pose {
     pub uncertainty: Option<Uncertainty>,
     /// In EstimateStream with the Kalman filter: the frame was left out as an outlier.
     pub gated: bool,
+    /// The answers in the conventions the face asked for.
+    pub conventions: Option<Conventions>,
 }
 
 /// Names the field of a decode error, as prost's derive does.
@@ -105,6 +119,10 @@ impl Message for Face {
         uint32::encode_packed(8, &self.missing, buf);
         if let Some(size) = &self.image_size {
             message::encode(9, size, buf);
+        }
+        message::encode_repeated(10, &self.conventions, buf);
+        if let Some(o) = &self.camera_orientation {
+            message::encode(11, o, buf);
         }
     }
 
@@ -143,6 +161,16 @@ impl Message for Face {
                 ctx,
             )
             .map_err(in_field(NAME, "image_size")),
+            10 => message::merge_repeated(wire_type, &mut self.conventions, buf, ctx)
+                .map_err(in_field(NAME, "conventions")),
+            11 => message::merge(
+                wire_type,
+                self.camera_orientation
+                    .get_or_insert_with(CameraOrientation::default),
+                buf,
+                ctx,
+            )
+            .map_err(in_field(NAME, "camera_orientation")),
             _ => skip_field(wire_type, tag, buf, ctx),
         }
     }
@@ -163,6 +191,11 @@ impl Message for Face {
                 .image_size
                 .as_ref()
                 .map_or(0, |c| message::encoded_len(9, c))
+            + message::encoded_len_repeated(10, &self.conventions)
+            + self
+                .camera_orientation
+                .as_ref()
+                .map_or(0, |o| message::encoded_len(11, o))
     }
 
     fn clear(&mut self) {
@@ -192,6 +225,9 @@ impl Message for Pose {
         }
         if self.gated {
             pbool::encode(13, &self.gated, buf);
+        }
+        if let Some(c) = &self.conventions {
+            message::encode(14, c, buf);
         }
     }
 
@@ -240,6 +276,13 @@ impl Message for Pose {
             13 => {
                 pbool::merge(wire_type, &mut self.gated, buf, ctx).map_err(in_field(NAME, "gated"))
             }
+            14 => message::merge(
+                wire_type,
+                self.conventions.get_or_insert_with(Conventions::default),
+                buf,
+                ctx,
+            )
+            .map_err(in_field(NAME, "conventions")),
             _ => skip_field(wire_type, tag, buf, ctx),
         }
     }
@@ -265,6 +308,10 @@ impl Message for Pose {
                 .as_ref()
                 .map_or(0, |u| message::encoded_len(12, u))
             + if self.gated { key_len(13) + 1 } else { 0 }
+            + self
+                .conventions
+                .as_ref()
+                .map_or(0, |c| message::encoded_len(14, c))
     }
 
     fn clear(&mut self) {
@@ -461,6 +508,98 @@ mod tests {
         prop_oneof![Just(String::new()), "[a-z0-9é]{1,12}"]
     }
 
+    /// The same message as another type of the same `.proto` message (the nested messages of
+    /// the new fields are prost-derived on both sides: the pair's own code is what is tested).
+    fn same<A: Message, B: Message + Default>(a: &A) -> B {
+        B::decode(a.encode_to_vec().as_slice()).expect("the same message")
+    }
+
+    fn params() -> impl Strategy<Value = std::collections::BTreeMap<String, String>> {
+        proptest::collection::btree_map(text(), text(), 0..4)
+    }
+
+    /// `Face.conventions`, prost's types.
+    fn conventions() -> impl Strategy<Value = Vec<reference::Convention>> {
+        proptest::collection::vec(
+            (text(), params()).prop_map(|(name, params)| reference::Convention { name, params }),
+            0..5,
+        )
+    }
+
+    /// `Face.camera_orientation`, prost's types: each form, or none.
+    fn orientations() -> impl Strategy<Value = Option<reference::CameraOrientation>> {
+        use reference::camera_orientation::Rotation;
+        let rotation = prop_oneof![
+            Just(None),
+            proptest::collection::vec(any_f64(), 0..11)
+                .prop_map(|values| Some(Rotation::Matrix(reference::RotationMatrix { values }))),
+            (any_f64(), any_f64(), any_f64(), any_f64()).prop_map(|(w, x, y, z)| Some(
+                Rotation::Quaternion(reference::Quaternion { w, x, y, z })
+            )),
+            (params(), proptest::collection::vec(any_f64(), 0..4)).prop_map(|(params, angles)| {
+                Some(Rotation::Euler(reference::EulerAngles { params, angles }))
+            }),
+        ];
+        proptest::option::of(
+            (rotation, text())
+                .prop_map(|(rotation, axes)| reference::CameraOrientation { rotation, axes }),
+        )
+    }
+
+    /// `Pose.conventions`, prost's types: any subset of the four answers.
+    fn answers() -> impl Strategy<Value = Option<reference::Conventions>> {
+        let doubles = |n: usize| proptest::collection::vec(any_f64(), 0..=n);
+        let quaternion = proptest::option::of(
+            (any_f64(), any_f64(), any_f64(), any_f64())
+                .prop_map(|(w, x, y, z)| reference::Quaternion { w, x, y, z }),
+        );
+        let euler = proptest::option::of(
+            (doubles(3), text(), text(), doubles(9), any::<bool>()).prop_map(
+                |(angles, order, units, matrix, near_gimbal_lock)| reference::EulerConvention {
+                    angles,
+                    kind: order.clone(),
+                    axes: units.clone(),
+                    matrices: order.clone(),
+                    order,
+                    units,
+                    matrix,
+                    near_gimbal_lock,
+                },
+            ),
+        );
+        let opencv = proptest::option::of(
+            (doubles(3), doubles(3), doubles(9), any::<bool>(), text()).prop_map(
+                |(rvec, tvec, rotation, camera_assumed, object_frame)| {
+                    reference::OpenCvConvention {
+                        camera_matrix: rotation.clone(),
+                        rvec,
+                        tvec,
+                        rotation,
+                        camera_assumed,
+                        object_frame,
+                    }
+                },
+            ),
+        );
+        let mediapipe = proptest::option::of((doubles(16), any::<u32>(), any_f64()).prop_map(
+            |(matrix, rows, fov)| reference::MediaPipeConvention {
+                data: matrix.iter().rev().copied().collect(),
+                matrix,
+                rows,
+                columns: rows / 2,
+                vertical_fov_deg: fov,
+            },
+        ));
+        proptest::option::of((quaternion, euler, opencv, mediapipe).prop_map(
+            |(quaternion, euler, opencv, mediapipe)| reference::Conventions {
+                quaternion,
+                euler,
+                opencv,
+                mediapipe,
+            },
+        ))
+    }
+
     prop_compose! {
         fn faces()(
             points in proptest::collection::vec((any_f64(), any_f64(), any::<bool>()), 0..80),
@@ -469,6 +608,8 @@ mod tests {
             xy in proptest::collection::vec(any_f64(), 0..200),
             missing in proptest::collection::vec(any::<u32>(), 0..5),
             size in proptest::option::of((any_f64(), any_f64())),
+            conventions in conventions(),
+            orientation in orientations(),
         ) -> (Face, reference::Face) {
             let (ours, theirs): (Vec<_>, Vec<_>) =
                 points.iter().map(|&(x, y, m)| landmark(x, y, m)).unzip();
@@ -484,6 +625,8 @@ mod tests {
                     xy: xy.clone(),
                     missing: missing.clone(),
                     image_size: size.map(|(width, height)| ImageSize { width, height }),
+                    conventions: conventions.iter().map(same).collect(),
+                    camera_orientation: orientation.as_ref().map(same),
                 },
                 reference::Face {
                     landmarks: theirs,
@@ -495,6 +638,8 @@ mod tests {
                     xy,
                     missing,
                     image_size: size.map(|(width, height)| reference::ImageSize { width, height }),
+                    conventions,
+                    camera_orientation: orientation,
                 },
             )
         }
@@ -511,6 +656,7 @@ mod tests {
             warnings in proptest::collection::vec(text(), 0..3),
             uncertainty in proptest::option::of(proptest::collection::vec(any_f64(), 9)),
             gated in any::<bool>(),
+            answers in answers(),
         ) -> (Pose, reference::Pose) {
             let (yaw, pitch, roll, residual) = angles;
             let ours = |v: &[f64]| {
@@ -540,6 +686,7 @@ mod tests {
                     warnings: warnings.clone(),
                     uncertainty: uncertainty.as_deref().map(ours),
                     gated,
+                    conventions: answers.as_ref().map(same),
                 },
                 reference::Pose {
                     yaw, pitch, roll, rotation, visible, residual, method, scheme,
@@ -548,6 +695,7 @@ mod tests {
                     warnings,
                     uncertainty: uncertainty.as_deref().map(theirs),
                     gated,
+                    conventions: answers,
                 },
             )
         }

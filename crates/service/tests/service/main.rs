@@ -7,6 +7,7 @@
 mod conventions;
 mod demo;
 mod grpc;
+mod grpc_conventions;
 mod http;
 mod lifecycle;
 mod registry;

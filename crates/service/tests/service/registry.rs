@@ -1422,8 +1422,35 @@ async fn http_json_uses_the_grpc_field_names() {
         .json()
         .await
         .unwrap();
-    // `smoothed` and `gated` belong to the gRPC stream; `translation` comes only with a camera.
-    assert_same_names("Pose", &pose, &["smoothed", "gated", "translation"]);
+    // `smoothed` and `gated` belong to the gRPC stream; `translation` comes only with a camera,
+    // `conventions` only when asked for (below).
+    assert_same_names(
+        "Pose",
+        &pose,
+        &["smoothed", "gated", "translation", "conventions"],
+    );
     assert_same_names("Uncertainty", &pose["uncertainty"], &[]);
     assert_same_names("AngleUncertainty", &pose["uncertainty"]["yaw"], &[]);
+    let pose: Value = c
+        .post(server.url("/v1/pose"))
+        .json(&json!({
+            "landmarks": face68(20.0, 5.0, 0.0),
+            "method": "fit",
+            "camera": {"fx": 800.0, "fy": 800.0, "cx": 320.0, "cy": 240.0},
+            "conventions": ["quaternion", {"name": "euler", "preset": "unity"}, "opencv"],
+        }))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let answers = &pose["conventions"];
+    assert!(answers.is_object(), "{pose}");
+    // This copy of the model has no MediaPipe mesh: the service tests of conventions check
+    // MediaPipeConvention's fields against the HTTP answer.
+    assert_same_names("Conventions", answers, &["mediapipe"]);
+    assert_same_names("Quaternion", &answers["quaternion"], &[]);
+    assert_same_names("EulerConvention", &answers["euler"], &[]);
+    assert_same_names("OpenCvConvention", &answers["opencv"], &[]);
 }

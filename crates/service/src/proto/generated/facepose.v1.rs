@@ -23,6 +23,83 @@ pub struct Camera {
     #[prost(double, tag = "4")]
     pub cy: f64,
 }
+/// One convention to answer in, with its parameters (at most 8), as the HTTP API's
+/// `{"name": ..., parameters}`:
+///
+/// * "quaternion", "mediapipe": no parameters;
+/// * "euler": preset (pose-para = 6drepnet = hopenet, openface, three, unity) and/or order
+///   (three letters of xyz: upper case intrinsic, lower case extrinsic), kind
+///   (intrinsic | extrinsic), units (degrees | radians), axes (RUB, RDF, ... or facepose,
+///   opengl, three, opencv, unity), matrices (standard | pose-para);
+/// * "opencv": object_frame (opencv, the default, or model).
+///   An unknown name, parameter or value is INVALID_ARGUMENT, with what to fix.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct Convention {
+    #[prost(string, tag = "1")]
+    pub name: ::prost::alloc::string::String,
+    #[prost(btree_map = "string, string", tag = "2")]
+    pub params: ::prost::alloc::collections::BTreeMap<
+        ::prost::alloc::string::String,
+        ::prost::alloc::string::String,
+    >,
+}
+/// A camera's orientation in the world: a rotation in one of three forms, in `axes`.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct CameraOrientation {
+    /// With `matrix` or `quaternion`: the axes they are written in (RUB, RDF, ... or facepose,
+    /// opengl, three, opencv, unity); empty: RUB (facepose's, x right, y up, z towards the viewer).
+    #[prost(string, tag = "4")]
+    pub axes: ::prost::alloc::string::String,
+    #[prost(oneof = "camera_orientation::Rotation", tags = "1, 2, 3")]
+    pub rotation: ::core::option::Option<camera_orientation::Rotation>,
+}
+/// Nested message and enum types in `CameraOrientation`.
+pub mod camera_orientation {
+    #[derive(Clone, PartialEq, ::prost::Oneof)]
+    pub enum Rotation {
+        /// 9 doubles, row-major; a proper rotation (orthonormal, determinant +1).
+        #[prost(message, tag = "1")]
+        Matrix(super::RotationMatrix),
+        /// A unit quaternion (Hamilton): its norm must be 1 to within 1e-6.
+        #[prost(message, tag = "2")]
+        Quaternion(super::Quaternion),
+        /// Euler angles with their convention's parameters (as for the "euler" convention).
+        #[prost(message, tag = "3")]
+        Euler(super::EulerAngles),
+    }
+}
+/// A 3x3 rotation matrix.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct RotationMatrix {
+    /// 9 doubles, row-major.
+    #[prost(double, repeated, tag = "1")]
+    pub values: ::prost::alloc::vec::Vec<f64>,
+}
+/// A unit quaternion, Hamilton convention.
+#[derive(Clone, Copy, PartialEq, ::prost::Message)]
+pub struct Quaternion {
+    #[prost(double, tag = "1")]
+    pub w: f64,
+    #[prost(double, tag = "2")]
+    pub x: f64,
+    #[prost(double, tag = "3")]
+    pub y: f64,
+    #[prost(double, tag = "4")]
+    pub z: f64,
+}
+/// Euler angles in a named convention.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct EulerAngles {
+    /// The "euler" convention's parameters (at most 8): preset, order, kind, units, axes, matrices.
+    #[prost(btree_map = "string, string", tag = "1")]
+    pub params: ::prost::alloc::collections::BTreeMap<
+        ::prost::alloc::string::String,
+        ::prost::alloc::string::String,
+    >,
+    /// The three angles, in the order's letters, in the units.
+    #[prost(double, repeated, tag = "2")]
+    pub angles: ::prost::alloc::vec::Vec<f64>,
+}
 /// An image's size, pixels.
 #[derive(Clone, Copy, PartialEq, ::prost::Message)]
 pub struct ImageSize {
@@ -40,6 +117,92 @@ pub struct Translation {
     pub y: f64,
     #[prost(double, tag = "3")]
     pub z: f64,
+}
+/// A pose in the caller's conventions: the fields of the names asked for are set.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct Conventions {
+    /// The rotation as a unit quaternion (Hamilton, w >= 0), of the same matrix as `rotation`.
+    #[prost(message, optional, tag = "1")]
+    pub quaternion: ::core::option::Option<Quaternion>,
+    /// Euler angles in the requested order, kind, units and axes.
+    #[prost(message, optional, tag = "2")]
+    pub euler: ::core::option::Option<EulerConvention>,
+    /// `rvec` and `tvec` as `cv2.solvePnP` returns them for the model's 3D points.
+    #[prost(message, optional, tag = "3")]
+    pub opencv: ::core::option::Option<OpenCvConvention>,
+    /// MediaPipe Face Landmarker's facial transformation matrix.
+    #[prost(message, optional, tag = "4")]
+    pub mediapipe: ::core::option::Option<MediaPipeConvention>,
+}
+/// Euler angles and what they mean.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct EulerConvention {
+    /// The three angles, in the order's letters, in `units`.
+    #[prost(double, repeated, tag = "1")]
+    pub angles: ::prost::alloc::vec::Vec<f64>,
+    /// Three letters of xyz: upper case intrinsic, lower case extrinsic.
+    #[prost(string, tag = "2")]
+    pub order: ::prost::alloc::string::String,
+    /// intrinsic | extrinsic
+    #[prost(string, tag = "3")]
+    pub kind: ::prost::alloc::string::String,
+    /// degrees | radians
+    #[prost(string, tag = "4")]
+    pub units: ::prost::alloc::string::String,
+    /// The axes the angles turn about, three letters of R/L, U/D, B/F (RUB: x right, y up, z
+    /// towards the viewer).
+    #[prost(string, tag = "5")]
+    pub axes: ::prost::alloc::string::String,
+    /// standard (right-hand rule) | pose-para (AFLW's matrices)
+    #[prost(string, tag = "6")]
+    pub matrices: ::prost::alloc::string::String,
+    /// The matrix the angles rebuild, in `axes`: 9 doubles, row-major.
+    #[prost(double, repeated, tag = "7")]
+    pub matrix: ::prost::alloc::vec::Vec<f64>,
+    /// Within 1 degree of gimbal lock, where the first and third angles are ill-conditioned.
+    #[prost(bool, tag = "8")]
+    pub near_gimbal_lock: bool,
+}
+/// What `cv2.solvePnP` returns, and what it was given.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct OpenCvConvention {
+    /// Rodrigues vector, radians (3 doubles).
+    #[prost(double, repeated, tag = "1")]
+    pub rvec: ::prost::alloc::vec::Vec<f64>,
+    /// The model origin in OpenCV's camera frame (x right, y down, z forward), mm (3 doubles).
+    #[prost(double, repeated, tag = "2")]
+    pub tvec: ::prost::alloc::vec::Vec<f64>,
+    /// `cv2.Rodrigues(rvec)`: 9 doubles, row-major.
+    #[prost(double, repeated, tag = "3")]
+    pub rotation: ::prost::alloc::vec::Vec<f64>,
+    /// K: 9 doubles, row-major: the face's camera intrinsics, or the assumed ones.
+    #[prost(double, repeated, tag = "4")]
+    pub camera_matrix: ::prost::alloc::vec::Vec<f64>,
+    /// Whether `camera_matrix` was assumed (no intrinsics were sent).
+    #[prost(bool, tag = "5")]
+    pub camera_assumed: bool,
+    /// The frame of the object points: opencv | model.
+    #[prost(string, tag = "6")]
+    pub object_frame: ::prost::alloc::string::String,
+}
+/// MediaPipe's facial transformation matrix in its two layouts.
+#[derive(Clone, PartialEq, ::prost::Message)]
+pub struct MediaPipeConvention {
+    /// 16 doubles, row-major 4x4, as Python's `facial_transformation_matrixes\[i\]`.
+    #[prost(double, repeated, tag = "1")]
+    pub matrix: ::prost::alloc::vec::Vec<f64>,
+    /// The 16 values column-major, as the web's `Matrix.data`.
+    #[prost(double, repeated, tag = "2")]
+    pub data: ::prost::alloc::vec::Vec<f64>,
+    /// 4.
+    #[prost(uint32, tag = "3")]
+    pub rows: u32,
+    /// 4.
+    #[prost(uint32, tag = "4")]
+    pub columns: u32,
+    /// The virtual camera's vertical field of view, degrees.
+    #[prost(double, tag = "5")]
+    pub vertical_fov_deg: f64,
 }
 /// How far to trust one angle, degrees.
 #[derive(Clone, PartialEq, ::prost::Message)]
