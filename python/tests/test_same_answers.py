@@ -134,7 +134,12 @@ def server(tmp_path_factory):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     p = subprocess.Popen(
-        [str(binary), "serve", "--addr", f"127.0.0.1:{port}", "--models", str(models)],
+        # A long request timeout: this checks answers, not speed, and CI's binary is a test
+        # build on cores other work may be using (a 503 timed-out batch failed it once).
+        [
+            str(binary), "serve", "--addr", f"127.0.0.1:{port}", "--models", str(models),
+            "--request-timeout", "300s",
+        ],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
