@@ -1,6 +1,7 @@
 //! The models, their versions and the folder's catalog as the API shows them, whatever the
 //! transport: plain data the HTTP and gRPC layers convert into their wire types.
 
+use facepose_core::geometry::convention::ObjectFrame;
 use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::Method;
 use facepose_core::shape::Anchors;
@@ -67,6 +68,9 @@ pub struct SchemeDetail {
     /// (x towards the subject's left, y up, z towards the camera), millimetres, the model's
     /// origin at the centroid of its own scheme's points.
     pub mean: Vec<[f64; 3]>,
+    /// The same points in OpenCV's object frame (`(x, -y, -z)`): what `cv2.solvePnP` and
+    /// `cv2.projectPoints` take with the `opencv` convention's `rvec` and `tvec`.
+    pub mean_opencv: Vec<[f64; 3]>,
     /// The points whose mean gives each semantic anchor (eyes, nose tip, mouth corners).
     pub anchors: Anchors,
     /// `mirror[i]`: the point `i` becomes when the face is mirrored left-right, if known.
@@ -97,6 +101,7 @@ pub fn scheme_detail(m: &ServedModel, scheme: &str) -> Result<SchemeDetail, Serv
         name: s.name.clone(),
         points: s.points.clone(),
         mean: mean.iter().map(|p| [p.x, p.y, p.z]).collect(),
+        mean_opencv: ObjectFrame::OpenCv.object_points(mean),
         anchors: s.anchors.clone(),
         mirror: s.mirror.clone(),
         contour: s.contour.clone(),

@@ -173,50 +173,72 @@ pub fn parse_multi_view(text: &str) -> Result<MultiViewSet, String> {
 /// left out.
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedRecord {
+    /// The render's unique id.
     pub id: String,
     /// `grid`, `random`, `trajectory` or `identity`.
     pub set: String,
+    /// The photo's person (`astronaut`, `insightface/t1#0`, ...).
     pub identity: String,
     /// `train` or `test`.
     pub split: String,
     /// `bfm` (absolute truth) or `mediapipe` (truth up to a constant rotation per identity).
     pub geometry: String,
+    /// Whether `truth` is in the model frame (`bfm`) rather than up to a constant rotation.
     pub truth_absolute: bool,
     /// `[width, height]`, pixels.
     pub image_size: [f64; 2],
+    /// The camera that made the render.
     pub camera: RenderedCamera,
+    /// The head's true pose.
     pub truth: RenderedTruth,
+    /// Its place in a trajectory (`set` = `trajectory`).
     pub trajectory: Option<RenderedFrame>,
+    /// The mesh's own 68 points, projected exactly.
     pub oracle: RenderedOracle,
+    /// What dlib found (`None`: no face detected).
     pub dlib: Option<RenderedDlib>,
+    /// What MediaPipe found (`None`: no face detected).
     pub mediapipe: Option<RenderedMediaPipe>,
 }
 
 /// The render's camera (`ortho` or `perspective`; the intrinsics of a perspective one).
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedCamera {
+    /// `ortho` (scaled orthographic) or `perspective` (pinhole).
     pub kind: String,
+    /// Focal length along x, pixels (perspective only).
     pub fx: Option<f64>,
+    /// Focal length along y, pixels (perspective only).
     pub fy: Option<f64>,
+    /// Principal point x, pixels (perspective only).
     pub cx: Option<f64>,
+    /// Principal point y, pixels, image y down (perspective only).
     pub cy: Option<f64>,
 }
 
 /// The true pose: Pose_Para angles (degrees) and the rotation, row-major.
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedTruth {
+    /// Degrees, > 0 chin up.
     pub pitch: f64,
+    /// Degrees, > 0 the nose turns towards image-left.
     pub yaw: f64,
+    /// Degrees, > 0 the eye line turns clockwise on screen.
     pub roll: f64,
+    /// `R = Rx(pitch) Ry(yaw) Rz(roll)`, row-major.
     pub rotation: [[f64; 3]; 3],
 }
 
 /// A trajectory frame.
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedFrame {
+    /// The trajectory's id.
     pub id: String,
+    /// The frame's index in it, from 0.
     pub frame: usize,
+    /// When the frame was taken, µs.
     pub timestamp_us: i64,
+    /// The trajectory's frame rate.
     pub fps: f64,
 }
 
@@ -224,16 +246,23 @@ pub struct RenderedFrame {
 /// and which of them the z-buffer sees (`1`/`0` per point).
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedOracle {
+    /// The 68 points, pixels (image y down).
     pub ibug68: Vec<[f64; 2]>,
+    /// `1` or `0` per point: seen by the z-buffer.
     pub visible: String,
+    /// The smallest angle error a weak-perspective estimate could reach on this render,
+    /// degrees (0 for orthographic renders).
     pub weak_perspective_deg: f64,
 }
 
 /// dlib's detection: integer pixel indices, as dlib gives them.
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedDlib {
+    /// The 68-point predictor's points, pixels.
     pub ibug68: Vec<[f64; 2]>,
+    /// The 5-point predictor's points, pixels (scheme `dlib5`).
     pub dlib5: Vec<[f64; 2]>,
+    /// The face detector's score.
     pub score: f64,
 }
 
@@ -241,7 +270,9 @@ pub struct RenderedDlib {
 /// facial transformation matrix (row-major 4x4).
 #[derive(Debug, Clone, Deserialize)]
 pub struct RenderedMediaPipe {
+    /// 478 points, x and y as fractions of the image's width and height.
     pub landmarks: Vec<[f64; 2]>,
+    /// MediaPipe's own pose of the face, row-major 4x4 (its canonical face, cm).
     pub facial_transformation_matrix: [[f64; 4]; 4],
 }
 

@@ -78,14 +78,20 @@ pub const MEDIAPIPE_MATRIX: &str = "mediapipe-matrix";
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Detector {
+    /// MediaPipe's 478 points, normalized, as scheme `mediapipe478`.
     Mediapipe478,
+    /// dlib's 68 points as `ibug68`, `landmark_style: contour` (as docs/API.md advises).
     Dlib68,
+    /// dlib's 5-point predictor as `dlib5`.
     Dlib5,
+    /// The five anchors (eye centres, nose tip, mouth corners) of dlib's 68, as `five`.
     Five,
+    /// The rendered mesh's own 68 points, projected exactly: the floor of the landmarks.
     Oracle68,
 }
 
 impl Detector {
+    /// Every input, in the order of the tables.
     pub const ALL: [Detector; 5] = [
         Detector::Mediapipe478,
         Detector::Dlib68,
@@ -94,6 +100,7 @@ impl Detector {
         Detector::Oracle68,
     ];
 
+    /// Its name in the tables and the JSON report.
     pub fn name(self) -> &'static str {
         match self {
             Detector::Mediapipe478 => "mediapipe478",
@@ -164,8 +171,11 @@ pub fn landmarks(
 /// carries an uncertainty.
 #[derive(Debug, Clone, Copy)]
 pub struct Answer {
+    /// The estimated rotation, model frame to camera frame.
     pub rotation: Rotation3<f64>,
+    /// Half the 90% interval of pitch, yaw, roll, degrees (with a calibrated uncertainty).
     pub half_width: Option<[f64; 3]>,
+    /// The covariance of the rotation's small turn, radians² (what the Kalman filter weighs).
     pub turn_cov: Option<Matrix3<f64>>,
 }
 
@@ -241,7 +251,10 @@ type Pair = (Rotation3<f64>, Rotation3<f64>);
 /// One (input, method, split, geometry, scoring) cell.
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderedRow {
+    /// The input ([`Detector::name`]).
     pub detector: String,
+    /// The estimation method (`auto`, `fit`, ...), or [`MEDIAPIPE_MATRIX`] for MediaPipe's own
+    /// pose.
     pub method: String,
     /// `train`, `test` or `all`.
     pub split: String,
@@ -249,13 +262,17 @@ pub struct RenderedRow {
     pub geometry: String,
     /// A constant rotation per identity removed before scoring (see the module docs).
     pub offset_removed: bool,
+    /// Renders in the cell.
     pub renders: usize,
     /// Renders where the detector found a face.
     pub detected: usize,
+    /// Renders with an estimate (a face found and the estimator answered).
     pub answered: usize,
-    /// Mean absolute error of pitch, yaw, roll; their mean; the mean geodesic error (degrees).
+    /// Mean absolute error of pitch, yaw, roll, degrees.
     pub mae: [f64; 3],
+    /// The mean of the three.
     pub mae_mean: f64,
+    /// The mean geodesic error, degrees.
     pub geodesic: f64,
     /// Mean signed error (estimate − truth) of pitch, yaw, roll.
     pub bias: [f64; 3],
@@ -263,8 +280,9 @@ pub struct RenderedRow {
     pub gain: [f64; 3],
     /// Per [`YAW_BANDS`] band: answers and the mean of the three MAEs.
     pub bands: Vec<(usize, f64)>,
-    /// Answers with an interval, and the share whose 90% interval holds the truth per angle.
+    /// Answers with an interval.
     pub with_interval: usize,
+    /// The share of them whose 90% interval holds the truth, per angle (pitch, yaw, roll).
     pub coverage: [f64; 3],
     /// Mean angle of the removed per-identity rotations, degrees (0 when none).
     pub mean_offset_deg: f64,
@@ -381,14 +399,19 @@ fn row(
 /// MediaPipe against dlib on geometry `bfm` (absolute truth), renders where both answered.
 #[derive(Debug, Clone, Serialize)]
 pub struct DisagreementRow {
+    /// The estimation method on both inputs.
     pub method: String,
+    /// `train`, `test` or `all`.
     pub split: String,
+    /// Renders where both detectors answered.
     pub renders: usize,
-    /// Mean of MediaPipe's angle minus dlib68's (pitch, yaw, roll), and of its absolute value.
+    /// Mean of MediaPipe's angle minus dlib68's (pitch, yaw, roll), degrees.
     pub mean_diff: [f64; 3],
+    /// Mean of its absolute value, degrees.
     pub mean_abs_diff: [f64; 3],
-    /// Mean signed error of each (pitch, yaw, roll).
+    /// MediaPipe's mean signed error of pitch, yaw, roll, degrees.
     pub bias_mediapipe: [f64; 3],
+    /// dlib68's mean signed error of pitch, yaw, roll, degrees.
     pub bias_dlib: [f64; 3],
 }
 
@@ -397,17 +420,25 @@ pub struct DisagreementRow {
 pub struct TrajectoryRow {
     /// The trajectory's id, or `all <split>` for a pooled row.
     pub trajectory: String,
+    /// The trajectory's identity (empty for a pooled row).
     pub identity: String,
+    /// Its split.
     pub split: String,
+    /// Its geometry (`bfm` or `mediapipe`).
     pub geometry: String,
+    /// Its camera (`ortho` or `perspective`).
     pub camera: String,
+    /// The input.
     pub detector: String,
+    /// `raw`, `one-euro` or `kalman` (the stream's defaults).
     pub filter: String,
+    /// Frames in the trajectory.
     pub frames: usize,
     /// Frames with an answer (what the stream emits).
     pub emitted: usize,
     /// Geodesic error over the emitted frames: RMS and mean, degrees.
     pub rms_error: f64,
+    /// The mean geodesic error, degrees.
     pub mean_error: f64,
     /// RMS turn error between consecutive emitted frames, degrees per frame.
     pub jitter: f64,
@@ -424,12 +455,19 @@ pub struct TrajectoryRow {
 /// Everything the protocol measures.
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderedReport {
+    /// Records read.
     pub records: usize,
+    /// Grid and random renders (the static tables).
     pub static_renders: usize,
+    /// Trajectory frames (the tracking table).
     pub trajectory_frames: usize,
+    /// The methods evaluated.
     pub methods: Vec<String>,
+    /// The static cells.
     pub rows: Vec<RenderedRow>,
+    /// MediaPipe against dlib.
     pub disagreement: Vec<DisagreementRow>,
+    /// The trajectories, per filter.
     pub trajectories: Vec<TrajectoryRow>,
 }
 

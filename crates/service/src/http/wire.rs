@@ -526,6 +526,10 @@ pub struct SchemeResponse {
     /// frame (x towards the subject's left, y up, z towards the camera; the nose tip has the
     /// largest z), origin at the centroid of the model's own scheme.
     pub mean: Vec<[f64; 3]>,
+    /// The same points in OpenCV's object frame, `(x, -y, -z)`: the object points of
+    /// `cv2.solvePnP` and `cv2.projectPoints` for the `opencv` convention's `rvec` and `tvec`
+    /// (its default `object_frame`; with `object_frame: "model"`, use `mean`).
+    pub mean_opencv: Vec<[f64; 3]>,
     /// The points of each semantic anchor.
     pub anchors: AnchorsSummary,
     /// `mirror[i]` is the point `i` becomes when the face is mirrored left-right; `null` when
@@ -545,6 +549,7 @@ impl From<SchemeDetail> for SchemeResponse {
             scheme: d.name,
             points: d.points,
             mean: d.mean,
+            mean_opencv: d.mean_opencv,
             anchors: AnchorsSummary {
                 eye_left: a.eye_left,
                 eye_right: a.eye_right,

@@ -168,3 +168,67 @@ async fn bad_conventions_say_what_to_fix() {
         assert!(message.contains(says), "{body}: {message}");
     }
 }
+
+/// `cv2.projectPoints(mean_opencv, rvec, tvec, K, None)`, written out, gives back the sent
+/// landmarks: the scheme route's OpenCV object points and the `opencv` answer fit together.
+#[tokio::test]
+async fn opencv_object_points_project_to_the_landmarks() {
+    let server = Server::start(&[]);
+    let c = reqwest::Client::new();
+    let landmarks = face68(25.0, -10.0, 6.0);
+    // A long focal length: the test faces are weak-perspective views.
+    let (f, cx, cy) = (200_000.0, 320.0, 240.0);
+    let (status, v) = post(
+        &c,
+        &server.url("/v1/pose"),
+        &json!({
+            "landmarks": landmarks,
+            "method": "fit",
+            "camera": {"fx": f, "fy": f, "cx": cx, "cy": cy},
+            "conventions": ["opencv"],
+        }),
+    )
+    .await;
+    assert_eq!(status, StatusCode::OK, "{v}");
+    let o = &v["conventions"]["opencv"];
+    let scheme: Value = c
+        .get(server.url("/v1/models/default/schemes/ibug68"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    let rvec = Vector3::from_iterator((0..3).map(|k| o["rvec"][k].as_f64().unwrap()));
+    let tvec = Vector3::from_iterator((0..3).map(|k| o["tvec"][k].as_f64().unwrap()));
+    let r = Rotation3::new(rvec);
+    let points = scheme["mean_opencv"].as_array().unwrap();
+    assert_eq!(points.len(), 68);
+    let mut sq = 0.0;
+    for (p, want) in points.iter().zip(&landmarks) {
+        let x = Vector3::from_iterator((0..3).map(|k| p[k].as_f64().unwrap()));
+        let cam = r * x + tvec;
+        assert!(cam.z > 0.0, "a point behind OpenCV's camera: {cam}");
+        let (u, w) = (f * cam.x / cam.z + cx, f * cam.y / cam.z + cy);
+        sq += (u - want[0]).powi(2) + (w - want[1]).powi(2);
+    }
+    let rms = (sq / 68.0).sqrt();
+    // Within the fit's residual (RMS over the inter-ocular distance, eye centres 36-41 and
+    // 42-47), with room for the weak-perspective views seen through a pinhole.
+    let centre = |r: std::ops::Range<usize>| {
+        let n = r.len() as f64;
+        r.fold([0.0, 0.0], |a, i| {
+            [a[0] + landmarks[i][0] / n, a[1] + landmarks[i][1] / n]
+        })
+    };
+    let (l, rr) = (centre(36..42), centre(42..48));
+    let iod = (l[0] - rr[0]).hypot(l[1] - rr[1]);
+    let residual_px = v["residual"].as_f64().unwrap() * iod;
+    eprintln!(
+        "projectPoints RMS {rms:.4} px, the fit's residual {residual_px:.4} px, IOD {iod:.1} px"
+    );
+    assert!(
+        rms <= 2.0 * residual_px + 0.1,
+        "projectPoints RMS {rms} px against the fit's residual {residual_px} px"
+    );
+}
