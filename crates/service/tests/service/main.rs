@@ -10,3 +10,4 @@ mod grpc;
 mod http;
 mod lifecycle;
 mod registry;
+mod websocket;
