@@ -15,6 +15,7 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use axum::Router;
 use axum::body::Bytes;
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
 use axum::extract::{FromRequestParts, Request, State};
@@ -22,7 +23,6 @@ use axum::http::header::{HOST, ORIGIN};
 use axum::http::{HeaderMap, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::Router;
 use facepose_app::App;
 use facepose_app::error::{ErrorKind, ServiceError};
 use facepose_app::estimate::{FaceInput, Frame, INLINE_BYTES, StreamSession};
@@ -446,11 +446,9 @@ async fn handshake(State(st): State<StreamState>, req: Request) -> Response {
         Ok(u) => u,
         Err(rejection) => {
             let status = rejection.status();
-            let mut resp = HttpError::invalid(format!(
-                "{PATH} is a WebSocket: {}",
-                rejection.body_text()
-            ))
-            .into_response();
+            let mut resp =
+                HttpError::invalid(format!("{PATH} is a WebSocket: {}", rejection.body_text()))
+                    .into_response();
             *resp.status_mut() = status;
             return resp;
         }
@@ -472,7 +470,6 @@ async fn writer(
     mut queue: mpsc::Receiver<Message>,
     mut now: oneshot::Receiver<Close>,
 ) {
-    const CLOSE_WAIT: Duration = Duration::from_secs(1);
     loop {
         let msg = tokio::select! {
             biased;
@@ -515,10 +512,8 @@ async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: W
     let mut session = Some(session);
     let mut last_frame = Instant::now();
     let mut last_heard = Instant::now();
-    let mut ping = tokio::time::interval_at(
-        Instant::now() + limits.ping_interval,
-        limits.ping_interval,
-    );
+    let mut ping =
+        tokio::time::interval_at(Instant::now() + limits.ping_interval, limits.ping_interval);
     // How the stream ends: a close sent after the queued answers, or at once.
     enum End {
         Queued(Close),
@@ -601,8 +596,24 @@ async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: W
     }
     drop(tx);
     drop(session);
-    let _ = writer.await;
+    // The closing handshake: read (and drop) what the client still sends until its close,
+    // so that the socket is not dropped with unread data (a reset, which would lose the
+    // answers and the close still in flight to the client).
+    let rest = async move {
+        while let Some(Ok(m)) = stream.next().await {
+            if matches!(m, Message::Close(_)) {
+                break;
+            }
+        }
+    };
+    let _ = tokio::time::timeout(CLOSE_WAIT, async {
+        let _ = tokio::join!(writer, rest);
+    })
+    .await;
 }
+
+/// How long a close may wait for room in a slow client's socket, and for the client's close.
+const CLOSE_WAIT: Duration = Duration::from_secs(5);
 
 /// The close for a client that reads too slowly.
 fn slow() -> Close {

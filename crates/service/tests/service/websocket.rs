@@ -4,16 +4,16 @@
 use std::time::Duration;
 
 use facepose_service::proto;
-use facepose_testkit::faces::*;
 use facepose_testkit::Endpoint;
+use facepose_testkit::faces::*;
 use facepose_testkit::server::Server;
 use futures_util::{SinkExt, StreamExt};
 use serde_json::{Value, json};
 use tokio_tungstenite::tungstenite::client::IntoClientRequest;
-use tokio_tungstenite::tungstenite::protocol::frame::coding::CloseCode;
 use tokio_tungstenite::tungstenite::{Error as WsError, Message};
 
-type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+type Ws =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
 /// Opens a stream, with `origin` as the handshake's `Origin` when given.
 async fn connect(server: &Server, origin: Option<&str>) -> Result<Ws, WsError> {
@@ -23,7 +23,9 @@ async fn connect(server: &Server, origin: Option<&str>) -> Result<Ws, WsError> {
     if let Some(o) = origin {
         req.headers_mut().insert("origin", o.parse().unwrap());
     }
-    tokio_tungstenite::connect_async(req).await.map(|(ws, _)| ws)
+    tokio_tungstenite::connect_async(req)
+        .await
+        .map(|(ws, _)| ws)
 }
 
 /// The handshake's HTTP status when it is refused.
@@ -82,7 +84,8 @@ async fn frames_are_answered_in_order_with_smoothed_poses() {
         if k == 3 {
             faces.push(face("bad", &[[1.0, 1.0]; 68]));
         }
-        let mut frame = json!({"frame_id": k, "timestamp_us": 1_000_000 + k * 33_333, "faces": faces});
+        let mut frame =
+            json!({"frame_id": k, "timestamp_us": 1_000_000 + k * 33_333, "faces": faces});
         if k == 0 {
             frame["smoothing"] = json!({"enabled": true});
         }
@@ -97,7 +100,9 @@ async fn frames_are_answered_in_order_with_smoothed_poses() {
         assert_eq!(p["id"], "t1");
         assert_eq!(p["pose"]["smoothed"], true, "{a}");
         assert_eq!(p["pose"]["scheme"], "ibug68");
-        for field in ["yaw", "pitch", "roll", "rotation", "residual", "method", "gated"] {
+        for field in [
+            "yaw", "pitch", "roll", "rotation", "residual", "method", "gated",
+        ] {
             assert!(!p["pose"][field].is_null(), "{field}: {a}");
         }
         if k == 3 {
@@ -111,7 +116,10 @@ async fn frames_are_answered_in_order_with_smoothed_poses() {
     send(&mut ws, json!({"frame_id": 9, "faces": [face("t1", &face68(10.0, 0.0, 0.0))], "smoothing": {"enabled": false}})).await;
     let a = answer(&mut ws).await;
     assert_eq!(a["faces"][0]["pose"]["smoothed"], false);
-    assert!((a["faces"][0]["pose"]["yaw"].as_f64().unwrap() - 10.0).abs() < 0.5, "{a}");
+    assert!(
+        (a["faces"][0]["pose"]["yaw"].as_f64().unwrap() - 10.0).abs() < 0.5,
+        "{a}"
+    );
     ws.close(None).await.unwrap();
 }
 
@@ -140,7 +148,10 @@ async fn the_default_filter_is_the_grpc_stream_s() {
         })
         .await
         .unwrap();
-        let g = tokio_stream::StreamExt::next(&mut out).await.unwrap().unwrap();
+        let g = tokio_stream::StreamExt::next(&mut out)
+            .await
+            .unwrap()
+            .unwrap();
         let gp = match &g.faces[0].result {
             Some(proto::face_result::Result::Pose(p)) => p.clone(),
             other => panic!("{other:?}"),
@@ -166,9 +177,17 @@ async fn a_frame_over_max_batch_closes_the_stream_with_1009() {
     let server = Server::start(&["--max-batch", "2"]);
     let mut ws = connect(&server, None).await.unwrap();
     let f = face68(0.0, 0.0, 0.0);
-    send(&mut ws, json!({"frame_id": 1, "faces": [face("a", &f), face("b", &f)]})).await;
+    send(
+        &mut ws,
+        json!({"frame_id": 1, "faces": [face("a", &f), face("b", &f)]}),
+    )
+    .await;
     assert_eq!(answer(&mut ws).await["faces"].as_array().unwrap().len(), 2);
-    send(&mut ws, json!({"frame_id": 2, "faces": [face("a", &f), face("b", &f), face("c", &f)]})).await;
+    send(
+        &mut ws,
+        json!({"frame_id": 2, "faces": [face("a", &f), face("b", &f), face("c", &f)]}),
+    )
+    .await;
     let (code, reason) = closed(&mut ws).await;
     assert_eq!(code, 1009, "{reason}");
     assert!(reason.contains('3') && reason.contains('2'), "{reason}");
@@ -180,7 +199,11 @@ async fn unusable_messages_close_with_their_codes() {
     let cases: [(Message, u16, &str); 4] = [
         (Message::binary(vec![1u8, 2, 3]), 1003, "binary"),
         (Message::text("{\"faces\": 3}"), 1007, "faces"),
-        (Message::text("{\"frame_id\": 1, \"extra\": 1}"), 1007, "extra"),
+        (
+            Message::text("{\"frame_id\": 1, \"extra\": 1}"),
+            1007,
+            "extra",
+        ),
         (
             Message::text(json!({"smoothing": {"enabled": true, "filter": "median"}}).to_string()),
             1008,
@@ -199,18 +222,33 @@ async fn unusable_messages_close_with_their_codes() {
 #[tokio::test]
 async fn the_handshake_checks_the_origin() {
     let server = Server::start(&["--cors-origins", "https://app.example.com"]);
-    assert_eq!(refused(&server, Some("https://evil.example.com")).await, 403);
-    assert!(connect(&server, Some("https://app.example.com")).await.is_ok());
-    assert!(connect(&server, None).await.is_ok(), "no Origin: not a browser");
+    assert_eq!(
+        refused(&server, Some("https://evil.example.com")).await,
+        403
+    );
+    assert!(
+        connect(&server, Some("https://app.example.com"))
+            .await
+            .is_ok()
+    );
+    assert!(
+        connect(&server, None).await.is_ok(),
+        "no Origin: not a browser"
+    );
     let own = format!("http://{}", server.addr);
     assert!(connect(&server, Some(&own)).await.is_ok(), "same origin");
     // Without --cors-origins only the server's own pages may.
     let closed_server = Server::start(&[]);
-    assert_eq!(refused(&closed_server, Some("https://app.example.com")).await, 403);
+    assert_eq!(
+        refused(&closed_server, Some("https://app.example.com")).await,
+        403
+    );
     let own = format!("http://{}", closed_server.addr);
     assert!(connect(&closed_server, Some(&own)).await.is_ok());
     // A plain GET is told what the route is.
-    let r = reqwest::get(format!("{}/v1/pose:stream", server.base)).await.unwrap();
+    let r = reqwest::get(format!("{}/v1/pose:stream", server.base))
+        .await
+        .unwrap();
     assert!(r.status().is_client_error(), "{}", r.status());
 }
 
@@ -229,7 +267,11 @@ async fn streams_share_max_streams_with_grpc() {
         Ok(r) => {
             let _ = tx.send(proto::Frame::default()).await;
             let mut out = r.into_inner();
-            tokio_stream::StreamExt::next(&mut out).await.unwrap().unwrap_err().code()
+            tokio_stream::StreamExt::next(&mut out)
+                .await
+                .unwrap()
+                .unwrap_err()
+                .code()
         }
     };
     assert_eq!(refused_grpc, tonic::Code::Unavailable);
@@ -253,7 +295,10 @@ async fn streams_share_max_streams_with_grpc() {
     tokio::time::sleep(Duration::from_millis(100)).await;
     let (tx, mut out) = facepose_testkit::open_stream(&mut c, 1).await;
     tx.send(proto::Frame::default()).await.unwrap();
-    tokio_stream::StreamExt::next(&mut out).await.unwrap().unwrap();
+    tokio_stream::StreamExt::next(&mut out)
+        .await
+        .unwrap()
+        .unwrap();
     assert_eq!(refused(&server, None).await, 503);
 }
 
@@ -261,7 +306,11 @@ async fn streams_share_max_streams_with_grpc() {
 async fn the_drain_closes_streams_with_1001() {
     let mut server = Server::start(&[]);
     let mut ws = connect(&server, None).await.unwrap();
-    send(&mut ws, json!({"frame_id": 1, "faces": [face("a", &face68(0.0, 0.0, 0.0))]})).await;
+    send(
+        &mut ws,
+        json!({"frame_id": 1, "faces": [face("a", &face68(0.0, 0.0, 0.0))]}),
+    )
+    .await;
     answer(&mut ws).await;
     server.terminate();
     let (code, reason) = closed(&mut ws).await;
@@ -284,5 +333,49 @@ async fn an_idle_stream_is_closed_and_pinged() {
     let (code, reason) = closed(&mut ws).await;
     assert_eq!(code, 1008, "{reason}");
     assert!(reason.contains("idle"), "{reason}");
-    let _ = CloseCode::Normal;
+}
+
+/// A client that sends frames and reads none: once the sockets' buffers and the answer queue
+/// are full the server closes the stream (1008), instead of holding more answers.
+#[tokio::test]
+async fn a_client_that_reads_too_slowly_is_closed() {
+    let server = Server::start(&["--ws-queue", "2"]);
+    let ws = connect(&server, None).await.unwrap();
+    let (mut tx, mut rx) = ws.split();
+    let faces: Vec<Value> = (0..100)
+        .map(|i| face(&format!("f{i}"), &face68(i as f64 % 40.0 - 20.0, 0.0, 0.0)))
+        .collect();
+    let frame = json!({"frame_id": 0, "faces": faces}).to_string();
+    let sent = 400;
+    let sender = tokio::spawn(async move {
+        for _ in 0..sent {
+            if tx.send(Message::text(frame.clone())).await.is_err() {
+                break;
+            }
+        }
+    });
+    // The server waits 5 s for room for its close: start reading within it.
+    let t = std::time::Instant::now();
+    let _ = tokio::time::timeout(Duration::from_secs(3), sender).await;
+    // Now read: the answers that fitted in the buffers, then the close.
+    let mut answers = 0;
+    let mut close = None;
+    while let Ok(Some(Ok(m))) = tokio::time::timeout(Duration::from_secs(10), rx.next()).await {
+        match m {
+            Message::Text(_) => answers += 1,
+            Message::Close(c) => {
+                close = c.map(|c| (u16::from(c.code), c.reason.to_string()));
+                break;
+            }
+            _ => {}
+        }
+    }
+    eprintln!(
+        "{answers} answers of {sent}, closed after {:?}",
+        t.elapsed()
+    );
+    assert!(answers < sent, "{answers} answers");
+    let (code, reason) = close.expect("a close frame");
+    assert_eq!(code, 1008, "{reason}");
+    assert!(reason.contains("too slowly"), "{reason}");
 }
