@@ -53,7 +53,8 @@ pub struct ServeArgs {
     /// are refused at once (HTTP 429, gRPC UNAVAILABLE) instead of queueing.
     #[arg(long, env = "FACEPOSE_MAX_CONCURRENCY", default_value_t = 512)]
     pub max_concurrency: usize,
-    /// Most open EstimateStream streams; above it new streams get UNAVAILABLE.
+    /// Most open streams, gRPC EstimateStream and WebSocket (/v1/pose:stream) together; above it
+    /// new streams get UNAVAILABLE (gRPC) or 503 (WebSocket handshake).
     #[arg(long, env = "FACEPOSE_MAX_STREAMS", default_value_t = 1024)]
     pub max_streams: usize,
     /// Most open connections (HTTP/1 and HTTP/2); past it a connection is answered 503 and

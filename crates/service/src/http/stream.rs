@@ -541,6 +541,12 @@ async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: W
             m = stream.next() => m,
         };
         let text = match msg {
+            Some(Err(e)) if too_long(&e) => {
+                break End::Now(Close::new(
+                    close::TOO_BIG,
+                    format!("a message over {} bytes (--max-body)", app.limits.max_body),
+                ));
+            }
             None | Some(Err(_)) | Some(Ok(Message::Close(_))) => break End::Quiet,
             Some(Ok(Message::Ping(_) | Message::Pong(_))) => {
                 last_heard = Instant::now();
@@ -614,6 +620,14 @@ async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: W
 
 /// How long a close may wait for room in a slow client's socket, and for the client's close.
 const CLOSE_WAIT: Duration = Duration::from_secs(5);
+
+/// Whether a read failed on a message or frame over the size limit. axum does not expose
+/// tungstenite's error type, so this reads its message ("Space limit exceeded: Message too
+/// long: ..." or "... Message frame too long ...").
+fn too_long(e: &axum::Error) -> bool {
+    let text = e.to_string();
+    text.contains("too long") || text.contains("Space limit exceeded")
+}
 
 /// The close for a client that reads too slowly.
 fn slow() -> Close {

@@ -379,3 +379,18 @@ async fn a_client_that_reads_too_slowly_is_closed() {
     assert_eq!(code, 1008, "{reason}");
     assert!(reason.contains("too slowly"), "{reason}");
 }
+
+#[tokio::test]
+async fn a_message_over_max_body_closes_with_1009() {
+    let server = Server::start(&["--max-body", "64KiB"]);
+    let mut ws = connect(&server, None).await.unwrap();
+    let faces: Vec<Value> = (0..60)
+        .map(|i| face(&i.to_string(), &face68(0.0, 0.0, 0.0)))
+        .collect();
+    let text = json!({"faces": faces}).to_string();
+    assert!(text.len() > 64 * 1024, "{}", text.len());
+    ws.send(Message::text(text)).await.unwrap();
+    let (code, reason) = closed(&mut ws).await;
+    assert_eq!(code, 1009, "{reason}");
+    assert!(reason.contains("--max-body"), "{reason}");
+}
