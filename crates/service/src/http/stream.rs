@@ -198,6 +198,10 @@ pub struct WsFrame {
 
 /// Parses a text message into a frame; the message of the error says where it is wrong.
 pub fn parse_frame(text: &str) -> Result<WsFrame, String> {
+    // Without the path first: tracking it costs a tenth of a frame's time.
+    if let Ok(frame) = serde_json::from_str(text) {
+        return Ok(frame);
+    }
     let de = &mut serde_json::Deserializer::from_str(text);
     serde_path_to_error::deserialize(de).map_err(|e| {
         let path = e.path().to_string();
@@ -488,7 +492,16 @@ async fn writer(
                 }
             },
         };
-        let closing = matches!(msg, Message::Close(_));
+        // The message and those already waiting behind it in one write.
+        let mut closing = matches!(msg, Message::Close(_));
+        let write = async {
+            sink.feed(msg).await?;
+            while !closing && let Ok(m) = queue.try_recv() {
+                closing = matches!(m, Message::Close(_));
+                sink.feed(m).await?;
+            }
+            sink.flush().await
+        };
         tokio::select! {
             biased;
             c = &mut now => {
@@ -497,7 +510,7 @@ async fn writer(
                 }
                 return;
             }
-            r = sink.send(msg) => if r.is_err() || closing { return },
+            r = write => if r.is_err() || closing { return },
         }
     }
 }
