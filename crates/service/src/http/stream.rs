@@ -462,7 +462,10 @@ async fn handshake(State(st): State<StreamState>, req: Request) -> Response {
         Err(e) => return HttpError::from(e).into_response(),
     };
     let max = st.app.limits.max_body;
+    // tungstenite reads in chunks of 128 KiB by default, held for the stream's life: 1,024
+    // open streams took 140 MB (scripts/abuse.sh, case w2). Frames are read in 16 KiB chunks.
     upgrade
+        .read_buffer_size(16 * 1024)
         .max_message_size(max)
         .max_frame_size(max)
         .on_upgrade(move |socket| run(socket, st.app, session, st.limits))
@@ -510,7 +513,17 @@ async fn writer(
                 }
                 return;
             }
-            r = write => if r.is_err() || closing { return },
+            r = write => {
+                if r.is_err() {
+                    // Refused after the client's close (tungstenite sends nothing after it
+                    // but the reply to the close, which this flushes).
+                    let _ = tokio::time::timeout(CLOSE_WAIT, sink.close()).await;
+                    return;
+                }
+                if closing {
+                    return;
+                }
+            }
         }
     }
 }
