@@ -28,6 +28,13 @@
 #       fresh probe connection past the cap is refused by design)
 #   e   20,000-character and 7 MB scheme / method / model values, HTTP and gRPC (Estimate);
 #       every answer must be under 2 KiB
+#   w1  WebSocket (GET /v1/pose:stream) frames of 9 MB, over --max-body: a close 1009 each
+#   w2  3,000 WebSocket streams opened and held (1,500 from each of 2 clients): --max-streams
+#       (1024) open, the rest refused at the handshake (503)
+#   w3  WebSocket slow readers (--ws-queue 8): 8 clients sending 100-face frames as fast as the
+#       server takes them and reading nothing: each stream closed with 1008
+#   w4  WebSocket frames after the client's close (a frame, the close, 20 frames): the first
+#       answered, the close echoed (1000), the rest ignored
 #
 # Targets per case (docs: the abuse issue): peak RSS under 2x the idle RSS before the case,
 # /healthz p99 under 50 ms, no /healthz failure; and (ours) the server alive at the end with
@@ -790,6 +797,205 @@ def over_cap(res, stop, port, held, threads):
 
 
 # ---------------------------------------------------------------------------------------------
+# WebSocket (GET /v1/pose:stream), framed by hand (RFC 6455; client frames masked)
+# ---------------------------------------------------------------------------------------------
+
+WS_HANDSHAKE = (b"GET /v1/pose:stream HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
+                b"Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                b"Sec-WebSocket-Version: 13\r\n\r\n")
+
+
+def ws_frame(payload, opcode=1):
+    """One client frame (FIN, masked with a zero key: the bytes are the payload's)."""
+    n = len(payload)
+    if n < 126:
+        head = struct.pack("!BB", 0x80 | opcode, 0x80 | n)
+    elif n < 1 << 16:
+        head = struct.pack("!BBH", 0x80 | opcode, 0x80 | 126, n)
+    else:
+        head = struct.pack("!BBQ", 0x80 | opcode, 0x80 | 127, n)
+    return head + b"\0\0\0\0" + payload
+
+
+class WsSock:
+    """A socket and the bytes read past the last frame."""
+
+    def __init__(self, sock):
+        self.sock, self.ws_rest = sock, b""
+
+    def sendall(self, data):
+        self.sock.sendall(data)
+
+    def recv(self, n):
+        return self.sock.recv(n)
+
+    def settimeout(self, t):
+        self.sock.settimeout(t)
+
+    def close(self):
+        self.sock.close()
+
+
+def ws_open(port, timeout=10.0):
+    """A socket with its handshake done: (socket, None), or (None, the HTTP status)."""
+    s = WsSock(connect(port, timeout))
+    s.sendall(WS_HANDSHAKE)
+    buf = b""
+    while b"\r\n\r\n" not in buf:
+        chunk = s.recv(4096)
+        if not chunk:
+            s.close()
+            return None, "closed"
+        buf += chunk
+    status = int(buf.split()[1])
+    if status != 101:
+        s.close()
+        return None, "HTTP %d" % status
+    s.ws_rest = buf.split(b"\r\n\r\n", 1)[1]
+    return s, None
+
+
+def ws_read(s, timeout):
+    """The next server frame: (opcode, payload), or None at EOF."""
+    s.settimeout(timeout)
+    buf = s.ws_rest
+
+    def need(n):
+        nonlocal buf
+        while len(buf) < n:
+            chunk = s.recv(65536)
+            if not chunk:
+                raise EOFError
+            buf += chunk
+    try:
+        need(2)
+        op, n = buf[0] & 0x0F, buf[1] & 0x7F
+        at = 2
+        if n == 126:
+            need(4)
+            n, at = struct.unpack("!H", buf[2:4])[0], 4
+        elif n == 127:
+            need(10)
+            n, at = struct.unpack("!Q", buf[2:10])[0], 10
+        need(at + n)
+    except EOFError:
+        return None
+    payload, s.ws_rest = buf[at:at + n], buf[at + n:]
+    return op, payload
+
+
+def ws_until_close(s, res, timeout=10.0, count_answers=False):
+    """Reads until the server's close; counts it by code ("WS close 1009"), or how it ended."""
+    try:
+        while True:
+            f = ws_read(s, timeout)
+            if f is None:
+                res["answers"]["WS closed without a close frame"] += 1
+                return
+            if f[0] == 8:
+                code = struct.unpack("!H", f[1][:2])[0] if len(f[1]) >= 2 else 1005
+                res["answers"]["WS close %d" % code] += 1
+                return
+            if f[0] == 1 and count_answers:
+                res["answers"]["WS answer"] += 1
+    except OSError as e:
+        res["answers"]["error: " + type(e).__name__] += 1
+    finally:
+        s.close()
+
+
+def ws_huge(res, stop, port, size):
+    """Frames of `size` bytes (over --max-body) again and again, each on a new stream."""
+    payload = b'{"faces":[' + b" " * (size - 12) + b"]}"
+    frame = ws_frame(payload)
+    while not stop.is_set():
+        try:
+            s, refused = ws_open(port)
+            if s is None:
+                res["answers"][refused] += 1
+                time.sleep(0.05)
+                continue
+            res["sent"] += 1
+            try:
+                s.sendall(frame)
+            except OSError:
+                pass  # the server closed as the frame's header said its size
+            ws_until_close(s, res)
+        except Exception as e:  # noqa: BLE001
+            res["answers"]["error: " + type(e).__name__] += 1
+            time.sleep(0.05)
+
+
+def ws_many(res, stop, port, n):
+    """`n` streams opened and held without a frame (past --max-streams: 503)."""
+    socks = []
+    for _ in range(n):
+        if stop.is_set():
+            break
+        try:
+            s, refused = ws_open(port)
+            res["sent"] += 1
+            if s is None:
+                res["answers"][refused] += 1
+            else:
+                socks.append(s)
+        except OSError as e:
+            res["answers"]["connect error: " + type(e).__name__] += 1
+    res["answers"]["WS open"] += len(socks)
+    while not stop.is_set():
+        stop.wait(0.2)
+    for s in socks:
+        s.close()
+
+
+def ws_slow_reader(res, stop, port, frame):
+    """Frames sent as fast as the server takes them and no answer read, on stream after
+    stream: each should end with the server's close (1008, reads too slowly)."""
+    data = ws_frame(frame)
+    while not stop.is_set():
+        try:
+            s, refused = ws_open(port)
+            if s is None:
+                res["answers"][refused] += 1
+                time.sleep(0.05)
+                continue
+            s.settimeout(10)
+            try:
+                while not stop.is_set():
+                    s.sendall(data)
+                    res["sent"] += 1
+            except OSError:
+                pass
+            ws_until_close(s, res, timeout=10)
+        except Exception as e:  # noqa: BLE001
+            res["answers"]["error: " + type(e).__name__] += 1
+            time.sleep(0.05)
+
+
+def ws_after_close(res, stop, port, frame):
+    """A frame, the client's close, then frames after it: the server answers the first and
+    the close, and ignores the rest."""
+    close = ws_frame(struct.pack("!H", 1000), opcode=8)
+    data = ws_frame(frame)
+    while not stop.is_set():
+        try:
+            s, refused = ws_open(port)
+            if s is None:
+                res["answers"][refused] += 1
+                time.sleep(0.05)
+                continue
+            res["sent"] += 1
+            try:
+                s.sendall(data + close + data * 20)
+            except OSError:
+                pass
+            ws_until_close(s, res, count_answers=True)
+        except Exception as e:  # noqa: BLE001
+            res["answers"]["error: " + type(e).__name__] += 1
+            time.sleep(0.05)
+
+
+# ---------------------------------------------------------------------------------------------
 # The cases
 # ---------------------------------------------------------------------------------------------
 
@@ -806,6 +1012,9 @@ def case_list(faces):
             long_http.append(("HTTP %s %s" % (field, nlabel), http_request("POST", "/v1/pose", body)))
             kw = {field: s}
             long_grpc.append(("gRPC %s %s" % (field, nlabel), pb_estimate(face, **kw)))
+    ws_one = json.dumps({"faces": [{"id": "t", "landmarks": face}]}).encode()
+    ws_batch = json.dumps({"faces": [{"id": str(i), "landmarks": faces[i % len(faces)]}
+                                     for i in range(100)]}).encode()
     return [
         dict(name="baseline", what="no load (the probes alone)", seconds=min(SECONDS, 10),
              procs=[], expect=set()),
@@ -833,6 +1042,22 @@ def case_list(faces):
              procs=[(mixed_http_flood, (long_http, 3))] * 2
              + [(grpc_flood, ("Estimate", long_grpc))] * 2,
              expect={"HTTP 422", "gRPC INVALID_ARGUMENT"}, max_answer=2 * KIB),
+        dict(name="w1", what="WebSocket frames of 9 MB (over --max-body), 4 clients",
+             procs=[(ws_huge, (9 * MIB,))] * 4,
+             expect={"WS close 1009", "WS closed without a close frame"},
+             sizes="frame %s B" % f"{9 * MIB:,}"),
+        dict(name="w2", what="3,000 WebSocket streams held open (--max-streams 1024)",
+             seconds=LONG_SECONDS, procs=[(ws_many, (1500,))] * 2,
+             expect={"WS open", "HTTP 503"}),
+        dict(name="w3", what="WebSocket slow readers: 100-face frames, no answer read, 8 clients",
+             extra=["--ws-queue", "8"], procs=[(ws_slow_reader, (ws_batch,))] * 8,
+             # A client that never reads cannot get the close frame: the server gives up on
+             # it after 5 s and drops the connection.
+             expect={"WS close 1008", "WS closed without a close frame"},
+             sizes="frame %s B" % f"{len(ws_batch):,}"),
+        dict(name="w4", what="WebSocket frames after the client's close, 4 clients",
+             procs=[(ws_after_close, (ws_one,))] * 4,
+             expect={"WS answer", "WS close 1000"}),
     ]
 
 

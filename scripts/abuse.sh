@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Abuse test of `facepose serve` (scripts/abuse.py: amplification, slowloris, idle connections,
-# long strings, over HTTP and gRPC) with /healthz latency and RSS watched; prints a Markdown
+# long strings, over HTTP and gRPC; huge frames, thousands of streams, slow readers and frames
+# after close over the WebSocket) with /healthz latency and RSS watched; prints a Markdown
 # table and exits non-zero when a target is missed.
 #
 #   scripts/abuse.sh                          # every case, 20 s each (40 s for c and d)
-#   ABUSE_CASES="a b1" scripts/abuse.sh       # some cases (baseline a b1 b2 c d d2 e)
+#   ABUSE_CASES="a b1" scripts/abuse.sh       # some cases (baseline a b1 b2 c d d2 e w1 w2 w3 w4)
 #   ABUSE_SECONDS=10 ABUSE_LONG_SECONDS=35 ABUSE_NICE=10 scripts/abuse.sh
 #
 # Builds the release binary and makes a venv under target/abuse-venv with the h2 package (the

@@ -25,7 +25,10 @@ fn guarded(kind: BodyKind, data: &[u8], chunk: usize) -> (bool, usize) {
 fuzz_target!(|data: &[u8]| {
     let chunk = 1 + data.first().map_or(0, |&b| b as usize % 17);
     for kind in [BodyKind::Pose, BodyKind::Batch { max_faces: 3 }] {
-        assert_eq!(guarded(kind, data, chunk), guarded(kind, data, data.len().max(1)));
+        assert_eq!(
+            guarded(kind, data, chunk),
+            guarded(kind, data, data.len().max(1))
+        );
     }
     if let Ok(batch) = serde_json::from_slice::<BatchRequest>(data)
         && batch.faces.len() <= 3

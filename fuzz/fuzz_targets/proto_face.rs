@@ -63,7 +63,10 @@ fuzz_target!(|data: &[u8]| {
     let limits = DecodeLimits { max_batch: 8 };
     let chunk = 1 + data.first().map_or(0, |&b| b as usize % 13);
     for rpc in [Rpc::Estimate, Rpc::EstimateBatch, Rpc::EstimateStream] {
-        assert_eq!(guarded(rpc, data, chunk), guarded(rpc, data, data.len() + 5));
+        assert_eq!(
+            guarded(rpc, data, chunk),
+            guarded(rpc, data, data.len() + 5)
+        );
     }
     // What the guard refuses, the codec's walk (or prost) refuses too.
     if !guarded(Rpc::EstimateBatch, data, chunk) && data.len() < 60_000 {

@@ -43,6 +43,8 @@ pub enum Transport {
     Http,
     /// gRPC.
     Grpc,
+    /// The WebSocket stream (`GET /v1/pose:stream`).
+    WebSocket,
 }
 
 impl Transport {
@@ -51,6 +53,7 @@ impl Transport {
         match self {
             Transport::Http => "http",
             Transport::Grpc => "grpc",
+            Transport::WebSocket => "websocket",
         }
     }
 }

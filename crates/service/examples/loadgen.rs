@@ -6,7 +6,8 @@
 //!   Faces carry `Landmark` messages, or with `--packed` the packed `xy` form. The frames go
 //!   out encoded in advance and of each result only whether each face got a pose is read
 //!   ([`LightCodec`]): the generator shares the server's cores, and what it spends is taken
-//!   from the server's measure.
+//!   from the server's measure. With `--ws`, the same over the WebSocket stream
+//!   (`GET /v1/pose:stream`, JSON text; the answers' poses counted without parsing them).
 //! - `loadgen ceiling BODY`: the server's own batch work (`http::answer_batch`: parse,
 //!   estimate, serialize) on a `POST /v1/pose:batch` body, on T threads with no network and no
 //!   server; prints faces/s, the most any server could answer on this machine at that moment.
@@ -50,6 +51,7 @@ struct Args {
     packed: bool,
     threads: usize,
     source: String,
+    ws: bool,
 }
 
 fn parse_args() -> Args {
@@ -67,6 +69,7 @@ fn parse_args() -> Args {
         packed: false,
         threads: 2,
         source: "dev".into(),
+        ws: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -83,6 +86,7 @@ fn parse_args() -> Args {
             "--method" => a.method = v(),
             "--batch" => a.batch = v().parse().expect("--batch N"),
             "--packed" => a.packed = true,
+            "--ws" => a.ws = true,
             "--threads" => a.threads = v().parse().expect("--threads N"),
             "--faces-from" => a.source = v(),
             c if a.cmd.is_empty() => a.cmd = c.to_string(),
@@ -358,8 +362,76 @@ fn ceiling(a: &Args) {
     );
 }
 
+/// One WebSocket stream (`--ws`): returns (poses, per-frame latencies).
+async fn one_ws_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
+    use futures_util::SinkExt;
+    use tokio_tungstenite::tungstenite::Message as WsMessage;
+    let url = format!(
+        "{}/v1/pose:stream",
+        a.addr
+            .replacen("http://", "ws://", 1)
+            .replacen("https://", "wss://", 1)
+    );
+    let (ws, _) = tokio_tungstenite::connect_async(url.as_str())
+        .await
+        .expect("WebSocket handshake");
+    let (mut tx, mut rx) = futures_util::StreamExt::split(ws);
+    let method = a.wire_method().to_string();
+    let pool: Vec<String> = faces(64 * a.faces, a, 61 * seed)
+        .chunks(a.faces)
+        .enumerate()
+        .map(|(k, fs)| {
+            let faces: Vec<_> = fs
+                .iter()
+                .enumerate()
+                .map(|(i, f)| {
+                    let mut face = json!({"id": i, "landmarks": f, "scheme": a.scheme});
+                    if !method.is_empty() {
+                        face["method"] = json!(method);
+                    }
+                    face
+                })
+                .collect();
+            json!({"frame_id": k, "faces": faces}).to_string()
+        })
+        .collect();
+    let mut sent: VecDeque<Instant> = VecDeque::new();
+    let mut lat = Vec::new();
+    let mut poses = 0u64;
+    let mut k = 0usize;
+    loop {
+        while sent.len() < a.window && Instant::now() < until {
+            let f = pool[k % pool.len()].clone();
+            k += 1;
+            sent.push_back(Instant::now());
+            if tx.send(WsMessage::text(f)).await.is_err() {
+                break;
+            }
+        }
+        if sent.is_empty() {
+            break;
+        }
+        match futures_util::StreamExt::next(&mut rx).await {
+            Some(Ok(WsMessage::Text(t))) => {
+                let t0 = sent.pop_front().expect("a frame in flight");
+                lat.push(t0.elapsed());
+                poses += t.as_str().matches("\"pose\":").count() as u64;
+            }
+            Some(Ok(WsMessage::Close(c))) => panic!("stream closed: {c:?}"),
+            Some(Ok(_)) => {}
+            Some(Err(e)) => panic!("stream error: {e}"),
+            None => break,
+        }
+    }
+    let _ = tx.send(WsMessage::Close(None)).await;
+    (poses, lat)
+}
+
 /// One stream: returns (poses, per-frame latencies).
 async fn one_stream(a: &Args, seed: u64, until: Instant) -> (u64, Vec<Duration>) {
+    if a.ws {
+        return one_ws_stream(a, seed, until).await;
+    }
     let channel = tonic::transport::Endpoint::from_shared(a.addr.clone())
         .expect("--addr is a URL")
         .connect()
@@ -449,13 +521,20 @@ async fn stream(a: Args) {
             .map_or(0.0, |d| d.as_secs_f64() * 1e3)
     };
     println!(
-        "streams {} faces/frame {} window {} scheme {} method {} encoding {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
+        "{}streams {} faces/frame {} window {} scheme {} method {} encoding {}: {:.0} poses/s, {:.0} frames/s, frame latency p50 {:.3} ms p99 {:.3} ms",
+        if a.ws { "WebSocket " } else { "" },
         a.streams,
         a.faces,
         a.window,
         a.scheme,
         a.method,
-        if a.packed { "xy" } else { "landmarks" },
+        if a.ws {
+            "json"
+        } else if a.packed {
+            "xy"
+        } else {
+            "landmarks"
+        },
         poses as f64 / secs,
         lat.len() as f64 / secs,
         pct(0.5),
@@ -475,7 +554,7 @@ fn main() {
             .expect("runtime")
             .block_on(stream(a)),
         _ => eprintln!(
-            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M|default] [--faces-from dev|synthetic] [--packed]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M|default] [--faces-from dev|synthetic]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
+            "usage: loadgen stream [--addr URL] [--streams S] [--faces F] [--window W] [--duration SECS] [--scheme S] [--method M|default] [--faces-from dev|synthetic] [--packed | --ws]\n       loadgen bodies DIR [--batch N] [--scheme S] [--method M|default] [--faces-from dev|synthetic]\n       loadgen ceiling BODY [--threads T] [--duration SECS]"
         ),
     }
 }

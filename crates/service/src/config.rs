@@ -53,7 +53,8 @@ pub struct ServeArgs {
     /// are refused at once (HTTP 429, gRPC UNAVAILABLE) instead of queueing.
     #[arg(long, env = "FACEPOSE_MAX_CONCURRENCY", default_value_t = 512)]
     pub max_concurrency: usize,
-    /// Most open EstimateStream streams; above it new streams get UNAVAILABLE.
+    /// Most open streams, gRPC EstimateStream and WebSocket (/v1/pose:stream) together; above it
+    /// new streams get UNAVAILABLE (gRPC) or 503 (WebSocket handshake).
     #[arg(long, env = "FACEPOSE_MAX_STREAMS", default_value_t = 1024)]
     pub max_streams: usize,
     /// Most open connections (HTTP/1 and HTTP/2); past it a connection is answered 503 and
@@ -88,6 +89,18 @@ pub struct ServeArgs {
     /// exits anyway, e.g. 10s.
     #[arg(long, env = "FACEPOSE_DRAIN_TIMEOUT", default_value = "10s")]
     pub drain_timeout: String,
+    /// WebSocket streams (`GET /v1/pose:stream`): a stream with no frame for this long is
+    /// closed (1008), e.g. 60s.
+    #[arg(long, env = "FACEPOSE_WS_IDLE_TIMEOUT", default_value = "60s")]
+    pub ws_idle_timeout: String,
+    /// WebSocket streams: the server pings this often, and closes (1008) a stream it has heard
+    /// nothing from (pong or frame) for two intervals, e.g. 20s.
+    #[arg(long, env = "FACEPOSE_WS_PING_INTERVAL", default_value = "20s")]
+    pub ws_ping_interval: String,
+    /// WebSocket streams: answers that may wait for a client reading slowly; one more closes
+    /// the stream (1008).
+    #[arg(long, env = "FACEPOSE_WS_QUEUE", default_value_t = 64)]
+    pub ws_queue: usize,
     /// Worker threads (default: the number of CPUs).
     #[arg(long, env = "FACEPOSE_WORKERS")]
     pub workers: Option<usize>,
@@ -200,6 +213,8 @@ pub struct Config {
     pub cors_origins: Option<CorsOrigins>,
     /// Whether `/demo` serves the demo page.
     pub demo: bool,
+    /// The WebSocket streams' bounds (`--ws-idle-timeout`, `--ws-ping-interval`, `--ws-queue`).
+    pub ws: crate::http::stream::WsLimits,
 }
 
 impl Config {
@@ -385,7 +400,20 @@ impl ServeArgs {
         };
         tracing_subscriber::EnvFilter::try_new(&self.log)
             .map_err(|e| bad("log", format!("{:?}: {e}", self.log)))?;
+        let ws_duration = |flag: &str, text: &str| {
+            let d = parse_duration(text).map_err(|r| bad(flag, r))?;
+            if d.is_zero() {
+                return Err(bad(flag, "must be more than 0"));
+            }
+            Ok::<_, ConfigError>(d)
+        };
+        let ws = crate::http::stream::WsLimits {
+            idle_timeout: ws_duration("ws-idle-timeout", &self.ws_idle_timeout)?,
+            ping_interval: ws_duration("ws-ping-interval", &self.ws_ping_interval)?,
+            queue: positive("ws-queue", self.ws_queue)?,
+        };
         Ok(Config {
+            ws,
             addr,
             keep_inactive_versions,
             cors_origins,

@@ -167,6 +167,7 @@ pub fn routers(
     app: &Arc<App>,
     cors: Option<&CorsOrigins>,
     pages: Pages,
+    ws: http::stream::WsLimits,
 ) -> Result<Router, ServeError> {
     let max_body = app.limits.max_body;
     let pose = proto::pose_service_server::PoseServiceServer::new(grpc::PoseApi::new(app.clone()))
@@ -210,6 +211,9 @@ pub fn routers(
         Pages::Demo => api.merge(http::demo::routes()),
         Pages::None => api,
     };
+    // The WebSocket stream checks the handshake's origin itself (browsers apply no CORS to
+    // WebSockets), so it stays outside the CORS layer.
+    let api = api.merge(http::stream::routes(app, cors, ws));
     Ok(api
         .merge(grpc)
         .fallback(http::fallback)
@@ -236,7 +240,7 @@ async fn serve_app(
     started: Instant,
 ) -> Result<(), ServeError> {
     let pages = if cfg.demo { Pages::Demo } else { Pages::None };
-    let router = routers(app, cfg.cors_origins.as_ref(), pages)?;
+    let router = routers(app, cfg.cors_origins.as_ref(), pages, cfg.ws)?;
     let addr = listener.local_addr()?;
     app.lifecycle.serving();
     tracing::info!(

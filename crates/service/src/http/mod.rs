@@ -26,6 +26,7 @@ pub mod path;
 pub mod pose;
 pub mod request_json;
 pub mod retrain;
+pub mod stream;
 pub mod wire;
 
 use std::sync::Arc;

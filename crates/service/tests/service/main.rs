@@ -11,3 +11,4 @@ mod grpc_conventions;
 mod http;
 mod lifecycle;
 mod registry;
+mod websocket;
