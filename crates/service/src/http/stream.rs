@@ -25,7 +25,7 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use facepose_app::App;
 use facepose_app::error::{ErrorKind, ServiceError};
-use facepose_app::estimate::{FaceInput, Frame, INLINE_BYTES, StreamSession};
+use facepose_app::estimate::{FaceInput, FaceScratch, Frame, INLINE_BYTES, StreamSession};
 use facepose_app::metrics::Transport;
 use facepose_app::pose::FaceSpec;
 use facepose_app::tracking::{Filter, Smoothed};
@@ -221,10 +221,7 @@ struct WsFace {
 }
 
 impl FaceInput for WsFace {
-    fn spec<'a>(
-        &'a self,
-        _points: &'a mut Vec<Option<[f64; 2]>>,
-    ) -> Result<FaceSpec<'a>, ServiceError> {
+    fn spec<'a>(&'a self, _scratch: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
         let f = &self.face;
         Ok(FaceSpec {
             landmarks: &f.landmarks.0,
