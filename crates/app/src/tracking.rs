@@ -33,6 +33,78 @@ pub enum Filter {
     OneEuro(OneEuroParams),
 }
 
+/// Which filter a stream's smoothing options name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FilterKind {
+    /// The Kalman filter on the rotation.
+    Kalman,
+    /// The One Euro filter.
+    OneEuro,
+}
+
+/// A stream's smoothing as its transport received it (gRPC's `Smoothing` message, the
+/// WebSocket's `smoothing` object): zero parameters take the defaults.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SmoothingOptions {
+    /// Smoothing on.
+    pub enabled: bool,
+    /// The filter named (`None`: unspecified, see [`SmoothingOptions::filter`]).
+    pub kind: Option<FilterKind>,
+    /// One Euro: minimum cutoff, Hz.
+    pub min_cutoff_hz: f64,
+    /// One Euro: cutoff increase per degree/second.
+    pub beta: f64,
+    /// One Euro: cutoff of the speed estimate, Hz.
+    pub d_cutoff_hz: f64,
+    /// Kalman: standard deviation of the angular acceleration, degrees/s².
+    pub acceleration_deg_s2: f64,
+    /// Kalman: Mahalanobis distance squared above which a frame is left out.
+    pub gate: f64,
+}
+
+impl SmoothingOptions {
+    /// The filter, or `None` when smoothing is off. An unspecified filter is the One Euro
+    /// filter when any of its parameters is set (as streams meant before the Kalman filter),
+    /// else the Kalman filter; zero parameters take the defaults, and the result is checked.
+    pub fn filter(&self) -> Result<Option<Filter>, ServiceError> {
+        if !self.enabled {
+            return Ok(None);
+        }
+        let or = |v: f64, default: f64| if v == 0.0 { default } else { v };
+        let one_euro_set = [self.min_cutoff_hz, self.beta, self.d_cutoff_hz]
+            .iter()
+            .any(|&v| v != 0.0);
+        let kind = self.kind.unwrap_or(if one_euro_set {
+            FilterKind::OneEuro
+        } else {
+            FilterKind::Kalman
+        });
+        let filter = match kind {
+            FilterKind::Kalman => {
+                let d = KalmanParams::default();
+                let p = KalmanParams {
+                    acceleration_deg_s2: or(self.acceleration_deg_s2, d.acceleration_deg_s2),
+                    gate: or(self.gate, d.gate),
+                    ..d
+                };
+                p.validate()?;
+                Filter::Kalman(p)
+            }
+            FilterKind::OneEuro => {
+                let d = OneEuroParams::default();
+                let p = OneEuroParams {
+                    min_cutoff_hz: or(self.min_cutoff_hz, d.min_cutoff_hz),
+                    beta: or(self.beta, d.beta),
+                    d_cutoff_hz: or(self.d_cutoff_hz, d.d_cutoff_hz),
+                };
+                p.validate()?;
+                Filter::OneEuro(p)
+            }
+        };
+        Ok(Some(filter))
+    }
+}
+
 /// One track's filter state.
 #[derive(Debug, Clone)]
 enum TrackFilter {

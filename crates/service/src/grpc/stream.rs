@@ -11,9 +11,7 @@ use facepose_app::App;
 use facepose_app::error::ServiceError;
 use facepose_app::estimate::{Frame, StreamSession};
 use facepose_app::metrics::Transport;
-use facepose_app::tracking::Filter;
-use facepose_core::geometry::rotation_kalman::KalmanParams;
-use facepose_core::geometry::smoothing::OneEuroParams;
+use facepose_app::tracking::{Filter, FilterKind, SmoothingOptions};
 use futures_util::Stream;
 use tonic::{Status, Streaming};
 
@@ -28,17 +26,10 @@ pub type FrameStream = Pin<Box<dyn Stream<Item = Result<proto::FrameResult, Stat
 /// when it is off. An unspecified filter is the One Euro filter when any of its parameters is
 /// set (as the message meant before the Kalman filter), else the Kalman filter.
 pub fn smoothing_params(s: &proto::Smoothing) -> Result<Option<Filter>, ServiceError> {
-    if !s.enabled {
-        return Ok(None);
-    }
-    let or = |v: f64, default: f64| if v == 0.0 { default } else { v };
-    let one_euro_set = [s.min_cutoff_hz, s.beta, s.d_cutoff_hz]
-        .iter()
-        .any(|&v| v != 0.0);
-    let kalman = match proto::SmoothingFilter::try_from(s.filter) {
-        Ok(proto::SmoothingFilter::Kalman) => true,
-        Ok(proto::SmoothingFilter::OneEuro) => false,
-        Ok(proto::SmoothingFilter::Unspecified) => !one_euro_set,
+    let kind = match proto::SmoothingFilter::try_from(s.filter) {
+        Ok(proto::SmoothingFilter::Kalman) => Some(FilterKind::Kalman),
+        Ok(proto::SmoothingFilter::OneEuro) => Some(FilterKind::OneEuro),
+        Ok(proto::SmoothingFilter::Unspecified) => None,
         Err(_) => {
             return Err(ServiceError::invalid(format!(
                 "smoothing: unknown filter {} (known: 1 SMOOTHING_FILTER_KALMAN, 2 SMOOTHING_FILTER_ONE_EURO)",
@@ -46,26 +37,16 @@ pub fn smoothing_params(s: &proto::Smoothing) -> Result<Option<Filter>, ServiceE
             )));
         }
     };
-    let filter = if kalman {
-        let d = KalmanParams::default();
-        let p = KalmanParams {
-            acceleration_deg_s2: or(s.acceleration_deg_s2, d.acceleration_deg_s2),
-            gate: or(s.gate, d.gate),
-            ..d
-        };
-        p.validate()?;
-        Filter::Kalman(p)
-    } else {
-        let d = OneEuroParams::default();
-        let p = OneEuroParams {
-            min_cutoff_hz: or(s.min_cutoff_hz, d.min_cutoff_hz),
-            beta: or(s.beta, d.beta),
-            d_cutoff_hz: or(s.d_cutoff_hz, d.d_cutoff_hz),
-        };
-        p.validate()?;
-        Filter::OneEuro(p)
-    };
-    Ok(Some(filter))
+    SmoothingOptions {
+        enabled: s.enabled,
+        kind,
+        min_cutoff_hz: s.min_cutoff_hz,
+        beta: s.beta,
+        d_cutoff_hz: s.d_cutoff_hz,
+        acceleration_deg_s2: s.acceleration_deg_s2,
+        gate: s.gate,
+    }
+    .filter()
 }
 
 /// Answers one frame in `session`. Fails (ending the stream) only for a frame over

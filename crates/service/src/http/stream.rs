@@ -28,9 +28,7 @@ use facepose_app::error::{ErrorKind, ServiceError};
 use facepose_app::estimate::{FaceInput, FaceScratch, Frame, INLINE_BYTES, StreamSession};
 use facepose_app::metrics::Transport;
 use facepose_app::pose::FaceSpec;
-use facepose_app::tracking::{Filter, Smoothed};
-use facepose_core::geometry::rotation_kalman::KalmanParams;
-use facepose_core::geometry::smoothing::OneEuroParams;
+use facepose_app::tracking::{Filter, FilterKind, Smoothed, SmoothingOptions};
 use facepose_records::PoseRecord;
 use futures_util::{SinkExt, StreamExt};
 use serde::{Deserialize, Serialize};
@@ -133,46 +131,29 @@ pub struct WsSmoothing {
     pub gate: f64,
 }
 
-/// The filter of a [`WsSmoothing`], or `None` when it is off: the same defaults, choice and
-/// checks as gRPC's `Smoothing` message.
+/// The filter of a [`WsSmoothing`], or `None` when it is off: the application's reading of
+/// a stream's smoothing options, the same as gRPC's `Smoothing` message gets.
 pub fn smoothing_filter(s: &WsSmoothing) -> Result<Option<Filter>, ServiceError> {
-    if !s.enabled {
-        return Ok(None);
-    }
-    let or = |v: f64, default: f64| if v == 0.0 { default } else { v };
-    let one_euro_set = [s.min_cutoff_hz, s.beta, s.d_cutoff_hz]
-        .iter()
-        .any(|&v| v != 0.0);
-    let kalman = match s.filter.as_deref() {
-        Some("kalman") => true,
-        Some("one_euro") => false,
-        None | Some("") => !one_euro_set,
+    let kind = match s.filter.as_deref() {
+        Some("kalman") => Some(FilterKind::Kalman),
+        Some("one_euro") => Some(FilterKind::OneEuro),
+        None | Some("") => None,
         Some(other) => {
             return Err(ServiceError::invalid(format!(
                 "smoothing: unknown filter {other:?} (known: \"kalman\", \"one_euro\")"
             )));
         }
     };
-    let filter = if kalman {
-        let d = KalmanParams::default();
-        let p = KalmanParams {
-            acceleration_deg_s2: or(s.acceleration_deg_s2, d.acceleration_deg_s2),
-            gate: or(s.gate, d.gate),
-            ..d
-        };
-        p.validate()?;
-        Filter::Kalman(p)
-    } else {
-        let d = OneEuroParams::default();
-        let p = OneEuroParams {
-            min_cutoff_hz: or(s.min_cutoff_hz, d.min_cutoff_hz),
-            beta: or(s.beta, d.beta),
-            d_cutoff_hz: or(s.d_cutoff_hz, d.d_cutoff_hz),
-        };
-        p.validate()?;
-        Filter::OneEuro(p)
-    };
-    Ok(Some(filter))
+    SmoothingOptions {
+        enabled: s.enabled,
+        kind,
+        min_cutoff_hz: s.min_cutoff_hz,
+        beta: s.beta,
+        d_cutoff_hz: s.d_cutoff_hz,
+        acceleration_deg_s2: s.acceleration_deg_s2,
+        gate: s.gate,
+    }
+    .filter()
 }
 
 /// One frame of the stream (the proto's `Frame`).
