@@ -47,7 +47,7 @@ impl FaceInput for PoseRequest {
 }
 
 /// What a batch's faces take from the batch when they do not say.
-struct BatchDefaults {
+pub(super) struct BatchDefaults {
     scheme: Option<String>,
     method: Option<String>,
     camera: Option<Camera>,
@@ -55,6 +55,19 @@ struct BatchDefaults {
     image_size: Option<[f64; 2]>,
     conventions: Option<Conventions>,
     camera_orientation: Option<Orientation>,
+}
+
+impl BatchDefaults {
+    /// No defaults: every face says for itself.
+    pub(super) const NONE: BatchDefaults = BatchDefaults {
+        scheme: None,
+        method: None,
+        camera: None,
+        landmark_style: None,
+        image_size: None,
+        conventions: None,
+        camera_orientation: None,
+    };
 }
 
 /// A face of a batch with the batch's defaults.
@@ -65,21 +78,26 @@ struct BatchItem<'r> {
 
 impl FaceInput for BatchItem<'_> {
     fn spec<'a>(&'a self, _: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
-        let (f, d) = (&self.face, self.defaults);
-        Ok(FaceSpec {
-            landmarks: &f.landmarks.0,
-            scheme: f.scheme.as_deref().or(d.scheme.as_deref()),
-            method: f.method.as_deref().or(d.method.as_deref()),
-            camera: f.camera.or(d.camera).map(Into::into),
-            style: f.landmark_style.as_deref().or(d.landmark_style.as_deref()),
-            image_size: image_size(f.image_size.or(d.image_size)),
-            conventions: f
-                .conventions
-                .as_ref()
-                .or(d.conventions.as_ref())
-                .map_or(&[], |c| &c.0[..]),
-            orientation: f.camera_orientation.or(d.camera_orientation).map(|o| o.0),
-        })
+        Ok(batch_face_spec(&self.face, self.defaults))
+    }
+}
+
+/// A batch face as the estimator takes it, what it does not say taken from `d` (the batch's
+/// defaults, or [`BatchDefaults::NONE`] for a face on its own, as the WebSocket stream's).
+pub(super) fn batch_face_spec<'a>(f: &'a BatchFace, d: &'a BatchDefaults) -> FaceSpec<'a> {
+    FaceSpec {
+        landmarks: &f.landmarks.0,
+        scheme: f.scheme.as_deref().or(d.scheme.as_deref()),
+        method: f.method.as_deref().or(d.method.as_deref()),
+        camera: f.camera.or(d.camera).map(Into::into),
+        style: f.landmark_style.as_deref().or(d.landmark_style.as_deref()),
+        image_size: image_size(f.image_size.or(d.image_size)),
+        conventions: f
+            .conventions
+            .as_ref()
+            .or(d.conventions.as_ref())
+            .map_or(&[], |c| &c.0[..]),
+        orientation: f.camera_orientation.or(d.camera_orientation).map(|o| o.0),
     }
 }
 

@@ -37,7 +37,8 @@ use tokio::time::Instant;
 
 use super::cors::CorsOrigins;
 use super::error::{ErrorBody, ErrorCode, ErrorObject, HttpError};
-use super::wire::{BatchFace, FaceId, image_size};
+use super::pose::{BatchDefaults, batch_face_spec};
+use super::wire::{BatchFace, FaceId};
 
 /// The route's path.
 pub const PATH: &str = "/v1/pose:stream";
@@ -203,17 +204,7 @@ struct WsFace {
 
 impl FaceInput for WsFace {
     fn spec<'a>(&'a self, _scratch: &'a mut FaceScratch) -> Result<FaceSpec<'a>, ServiceError> {
-        let f = &self.face;
-        Ok(FaceSpec {
-            landmarks: &f.landmarks.0,
-            scheme: f.scheme.as_deref(),
-            method: f.method.as_deref(),
-            camera: f.camera.map(Into::into),
-            style: f.landmark_style.as_deref(),
-            image_size: image_size(f.image_size),
-            conventions: f.conventions.as_ref().map_or(&[], |c| &c.0[..]),
-            orientation: f.camera_orientation.map(|o| o.0),
-        })
+        Ok(batch_face_spec(&self.face, &BatchDefaults::NONE))
     }
 
     fn track_id(&self) -> &str {
