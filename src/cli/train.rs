@@ -11,10 +11,12 @@ use facepose_core::model::{
 };
 use facepose_core::sfm::{SfmOptions, reconstruct};
 use facepose_core::shape::{Scheme, Shape2};
+use facepose_eval::detector_training::train_mediapipe;
 use facepose_eval::uncertainty::calibrate_on_faces;
 use facepose_files::data::{
     load_aflw, load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
 };
+use facepose_files::rendered::{load_rendered, rendered_files};
 use facepose_files::store::write_bundle_dir;
 use nalgebra::Vector3;
 
@@ -80,6 +82,13 @@ pub struct TrainArgs {
     /// angle (an ibug68 model only: the faces' landmarks are ibug68).
     #[arg(long, value_name = "FILE")]
     calibrate: Option<PathBuf>,
+    /// The rendered benchmark's directory (tests/fixtures/rendered): the bundle then stores the
+    /// detector regression of MediaPipe's 478 points (method `detector`, what `auto` runs on a
+    /// complete `mediapipe478` face), trained on its `train` identities only, with its
+    /// uncertainty calibrated on the answers of its leave-one-identity-out folds. Needs --mesh
+    /// and --calibrate.
+    #[arg(long, value_name = "DIR", requires_all = ["mesh", "calibrate"])]
+    detector_renders: Option<PathBuf>,
     /// Model name (default: the --out directory's name).
     #[arg(long)]
     name: Option<String>,
@@ -265,6 +274,25 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         model.calibration = Some(calibrate_on_faces(&model, &faces, &name)?);
         progress.stage("calibrated the uncertainty");
     }
+    if let Some(dir) = &a.detector_renders {
+        progress.stage(format_args!(
+            "training the MediaPipe detector regression on {}",
+            dir.display()
+        ));
+        for f in rendered_files(dir)? {
+            sources.push(source_file(&dir.join(f))?);
+        }
+        let records = load_rendered(dir, None)?;
+        let (regression, group) =
+            train_mediapipe(&mut model, &records, &dir.display().to_string())?;
+        if let Some(c) = model.calibration.as_mut() {
+            c.data
+                .push_str("; method detector: its folds' answers on the rendered train identities");
+            c.groups.push(group);
+        }
+        model.detectors = vec![regression];
+        progress.stage("trained the detector regression");
+    }
     let created = match a.created {
         Some(c) => c,
         None => time::OffsetDateTime::now_utc()
@@ -298,6 +326,11 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
             ""
         } + if a.calibrate.is_some() {
             "; uncertainty calibrated on the last source's faces (AFLW2000-3D; research use)"
+        } else {
+            ""
+        } + if a.detector_renders.is_some() {
+            "; detector regression: MediaPipe's points on the rendered benchmark's train \
+             identities (renders of photos shipped in scikit-image and the insightface wheel)"
         } else {
             ""
         },

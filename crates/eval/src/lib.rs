@@ -7,6 +7,7 @@
 //! (`clippy.toml`): files are read by `facepose-files` and written by the binary.
 
 pub mod aflw;
+pub mod detector_training;
 pub mod hpr_table;
 pub mod mesh;
 pub mod paper;

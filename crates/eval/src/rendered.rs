@@ -223,12 +223,14 @@ pub fn mesh_frame(model: &PoseModel) -> Option<MeshFrame> {
         .and_then(|m| MeshFrame::of_served_mesh(&m.source().vertices).ok())
 }
 
-fn truth_rotation(rec: &RenderedRecord) -> Rotation3<f64> {
+/// The true rotation of a render.
+pub fn truth_rotation(rec: &RenderedRecord) -> Rotation3<f64> {
     let t = &rec.truth.rotation;
     nearest_rotation(&Matrix3::from_fn(|i, j| t[i][j]))
 }
 
-fn truth_angles(rec: &RenderedRecord) -> [f64; 3] {
+/// The true angles of a render: pitch, yaw, roll, degrees.
+pub fn truth_angles(rec: &RenderedRecord) -> [f64; 3] {
     [rec.truth.pitch, rec.truth.yaw, rec.truth.roll]
 }
 

@@ -6,6 +6,7 @@
 //! point that runs a method with a model: this module knows no model.
 
 pub(crate) mod dense;
+pub mod detector;
 pub mod fit;
 pub mod geometric;
 pub mod morph_fit;

@@ -22,6 +22,7 @@ use super::train::{
 };
 use super::{PoseModel, Subset};
 use crate::error::Error;
+use crate::estimate::detector::DetectorRegression;
 use crate::estimate::geometric::GeometryConstants;
 use crate::estimate::morph_fit::MorphableBasis;
 use crate::estimate::regression::RegressionModel;
@@ -217,6 +218,11 @@ pub struct Bundle {
     /// without one (left out of the JSON, so their checksums stay as they were).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub calibration: Option<Calibration>,
+    /// Regressions trained on landmark detectors' output ([`crate::estimate::detector`]);
+    /// absent in bundles without them (left out of the JSON, so their checksums stay as they
+    /// were).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub detector_regressions: Vec<DetectorRegression>,
     /// `sha256:<hex>` of the compact JSON with an empty checksum field.
     pub checksum: String,
 }
@@ -312,6 +318,7 @@ impl Bundle {
             shape_basis,
             mesh,
             calibration: model.calibration.clone(),
+            detector_regressions: model.detectors.clone(),
             checksum: String::new(),
         };
         bundle.checksum = bundle.compute_checksum()?;
@@ -541,6 +548,31 @@ impl Bundle {
         if let Some(c) = &self.calibration {
             c.validate().map_err(core("calibration"))?;
         }
+        for (i, d) in self.detector_regressions.iter().enumerate() {
+            d.validate().map_err(core("detector_regressions"))?;
+            let n = mesh
+                .as_ref()
+                .and_then(|m| m.scheme(&d.scheme))
+                .map(|s| s.scheme.len());
+            if n.map(|n| 2 * n + 1) != Some(d.weights.len()) {
+                return Err(invalid(
+                    "detector_regressions",
+                    format!(
+                        "entry {i} ({}) is not for a mesh scheme of this model, or has the wrong number of weights",
+                        d.scheme
+                    ),
+                ));
+            }
+            if self.detector_regressions[..i]
+                .iter()
+                .any(|e| e.scheme == d.scheme)
+            {
+                return Err(invalid(
+                    "detector_regressions",
+                    format!("entry {i} repeats scheme {}", d.scheme),
+                ));
+            }
+        }
         Ok(PoseModel {
             scheme: self.scheme.clone(),
             mean,
@@ -551,6 +583,7 @@ impl Bundle {
             morph,
             mesh,
             calibration: self.calibration.clone(),
+            detectors: self.detector_regressions.clone(),
         })
     }
 }

@@ -18,6 +18,7 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::estimate::detector::DetectorRegression;
 use crate::estimate::geometric::GeometryConstants;
 use crate::estimate::morph_fit::MorphableBasis;
 use crate::estimate::regression::RegressionModel;
@@ -129,9 +130,17 @@ pub struct PoseModel {
     /// The map from an estimate's raw spread to calibrated standard deviations and 90%
     /// intervals ([`crate::uncertainty::calibration`]); without it answers carry none.
     pub calibration: Option<Calibration>,
+    /// Regressions trained on landmark detectors' own output, one per scheme at most
+    /// ([`crate::estimate::detector`]): method `detector`, and `auto` on those schemes.
+    pub detectors: Vec<DetectorRegression>,
 }
 
 impl PoseModel {
+    /// The detector regression that reads scheme `name`, when the model has one.
+    pub fn detector(&self, name: &str) -> Option<&DetectorRegression> {
+        self.detectors.iter().find(|d| d.scheme == name)
+    }
+
     /// Every scheme the model serves: its subsets' (its own first), then its mesh's.
     pub fn schemes(&self) -> impl Iterator<Item = &Scheme> {
         self.subsets.iter().map(|s| &s.scheme).chain(

@@ -208,6 +208,7 @@ pub fn train(
         morph,
         mesh: None,
         calibration: None,
+        detectors: vec![],
     })
 }
 

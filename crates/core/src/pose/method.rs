@@ -14,6 +14,7 @@ use nalgebra::{Rotation3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
+use crate::estimate::detector::DetectorRegression;
 use crate::estimate::fit::{FitOptions, RigidFit, fit_rigid};
 use crate::estimate::geometric::estimate_geometric;
 use crate::estimate::morph_fit::{MorphOptions, fit_morphable};
@@ -38,6 +39,8 @@ pub enum Method {
     Regression,
     /// The paper's modified five-point geometric method.
     Geometry,
+    /// The ridge regression trained on a landmark detector's own output.
+    Detector,
 }
 
 /// What a method needs of a model beyond its mean shape.
@@ -47,6 +50,8 @@ pub enum Needs {
     Nothing,
     /// A morphable shape basis (`PoseModel::morph`).
     ShapeBasis,
+    /// A detector regression (`PoseModel::detectors`), for the scheme of the input.
+    DetectorRegression,
 }
 
 impl Needs {
@@ -55,6 +60,7 @@ impl Needs {
         match self {
             Needs::Nothing => true,
             Needs::ShapeBasis => model.morph.is_some(),
+            Needs::DetectorRegression => !model.detectors.is_empty(),
         }
     }
 
@@ -63,6 +69,7 @@ impl Needs {
         match self {
             Needs::Nothing => "nothing",
             Needs::ShapeBasis => "a model with a shape basis",
+            Needs::DetectorRegression => "a model with a detector regression",
         }
     }
 }
@@ -124,12 +131,13 @@ pub struct MethodSpec {
 }
 
 /// Every method, in the order of the docs and of listings ([`Method::ALL`] follows it).
-pub const METHODS: [MethodSpec; 5] = [
+pub const METHODS: [MethodSpec; 6] = [
     MethodSpec {
         method: Method::Auto,
         name: "auto",
         summary: "the most accurate method for the input: fit-shape for 12 or more points of \
-                  ibug68 or inner51, fit otherwise (a MediaPipe mesh is fitted whole)",
+                  ibug68 or inner51, detector for a complete mediapipe478 face when the model \
+                  has its regression, fit otherwise (a MediaPipe mesh is fitted whole)",
         needs: Needs::Nothing,
         perspective: true,
         misfit: Misfit::OfOwnPose,
@@ -171,6 +179,16 @@ pub const METHODS: [MethodSpec; 5] = [
         perspective: false,
         misfit: Misfit::OfRigidFit,
         run: Some(run_geometry),
+    },
+    MethodSpec {
+        method: Method::Detector,
+        name: "detector",
+        summary: "the ridge regression trained on a detector's own points over rendered heads at \
+                  known poses (mediapipe478 in the default model; every point needed)",
+        needs: Needs::DetectorRegression,
+        perspective: false,
+        misfit: Misfit::OfRigidFit,
+        run: Some(run_detector),
     },
 ];
 
@@ -235,12 +253,16 @@ impl Method {
         }
     }
 
-    /// The method `auto` stands for on a MediaPipe mesh scheme: the rigid fit of the mesh. On
-    /// the mesh at known poses it is exact where the shape fit through the correspondence is
-    /// 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md), and it is what
+    /// The method `auto` stands for on MediaPipe mesh scheme `scheme` (`complete`: every
+    /// point present). The detector regression where the model has one for the scheme and the
+    /// face is complete: on MediaPipe's own points over rendered heads at known poses it is the
+    /// most accurate (`facepose eval --protocol rendered`, docs/RESULTS.md). Otherwise the
+    /// rigid fit of the mesh: on the mesh at known poses it is exact where the shape fit through
+    /// the correspondence is 2-3° off (`facepose eval --protocol mediapipe`), and it is what
     /// MediaPipe's own pose does (a fit of this mesh).
-    pub fn resolve_on_mesh(self) -> Method {
+    pub fn resolve_on_mesh(self, model: &PoseModel, scheme: &str, complete: bool) -> Method {
         match self {
+            Method::Auto if complete && model.detector(scheme).is_some() => Method::Detector,
             Method::Auto => Method::Fit,
             m => m,
         }
@@ -397,6 +419,35 @@ fn run_geometry<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
     Ok(Ran {
         rotation: estimate_geometric(&five, &i.model.geometry)?,
         fitted: None,
+    })
+}
+
+fn run_detector<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
+    let regression = detector_of(i.model, i.scheme)?;
+    // The rigid fit is the reference the regression de-rolls by.
+    let reference = run_fit(i)?.rotation;
+    Ok(Ran {
+        rotation: regression.estimate(i.landmarks, &reference)?,
+        fitted: None,
+    })
+}
+
+/// The model's detector regression for `scheme`, or a message naming the schemes it has.
+pub fn detector_of<'m>(model: &'m PoseModel, scheme: &str) -> Result<&'m DetectorRegression> {
+    model.detector(scheme).ok_or_else(|| {
+        let have: Vec<&str> = model.detectors.iter().map(|d| d.scheme.as_str()).collect();
+        Error::param(
+            "method",
+            format!(
+                "method detector has no regression for scheme {scheme} in this model (it has \
+                 one for: {}); use auto or fit",
+                if have.is_empty() {
+                    "none".to_string()
+                } else {
+                    have.join(", ")
+                }
+            ),
+        )
     })
 }
 

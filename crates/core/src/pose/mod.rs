@@ -352,17 +352,24 @@ fn estimate_mesh(
 ) -> Result<Estimate> {
     check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
-    let method = opts.method.resolve_on_mesh();
+    let complete = landmarks.n_present() == landmarks.len();
+    let method = opts
+        .method
+        .resolve_on_mesh(model, &ms.scheme.name, complete);
     let spec = method.spec();
     spec.check_camera(opts.camera.as_ref())?;
     // Every method's spread is taken on the model's own points (the mesh landmarks' means),
     // where the calibration was learned: the mesh's 468 points are not 468 independent
     // measurements.
     let proxy = mesh.to_model(&pose_lm, &model.scheme)?;
+    // The rigid fit of the mesh: the answer of `fit`, the reference `detector` de-rolls by,
+    // and the misfit of the methods measured on it.
+    let rigid = || fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style));
+    let mut fitted = None;
     let (rotation, translation) = match method {
         Method::Fit => {
-            let f = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))?;
-            match &opts.camera {
+            let f = rigid()?;
+            let answer = match &opts.camera {
                 Some(k) => {
                     let p = refine_perspective(
                         &ms.points,
@@ -374,7 +381,17 @@ fn estimate_mesh(
                     (p.rotation, Some(p.translation))
                 }
                 None => (f.rotation, None),
-            }
+            };
+            fitted = Some(f);
+            answer
+        }
+        // The regression reads the detector's own points, all of them.
+        Method::Detector => {
+            let f = rigid()?;
+            let r =
+                method::detector_of(model, &ms.scheme.name)?.estimate(landmarks, &f.rotation)?;
+            fitted = Some(f);
+            (r, None)
         }
         _ => {
             let e = estimate_in_subset(
@@ -390,10 +407,13 @@ fn estimate_mesh(
     let (residual, mut misfit) =
         residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
     if spec.misfit == Misfit::OfRigidFit {
-        misfit = fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style))
-            .map_or(f64::NAN, |f| {
-                self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
-            });
+        let f = match fitted {
+            Some(f) => Ok(f),
+            None => rigid(),
+        };
+        misfit = f.map_or(f64::NAN, |f| {
+            self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
+        });
     }
     let spread =
         raw_spread(&model.mean, &proxy, None, &rotation).map(|s| RawSpread { misfit, ..s });

@@ -42,7 +42,7 @@ pub struct Face {
     pub landmarks: Vec<Landmark>,
     /// The landmark scheme; empty: the one scheme with that many points.
     pub scheme: String,
-    /// auto | fit | fit-shape | regression | geometry; empty: auto.
+    /// auto | fit | fit-shape | regression | geometry | detector; empty: auto.
     pub method: String,
     /// Optional camera intrinsics.
     pub camera: Option<Camera>,

@@ -35,7 +35,7 @@ pub struct Face {
     /// the one scheme with that many points (5 points must name five or dlib5).
     #[prost(string, tag = "2")]
     pub scheme: ::prost::alloc::string::String,
-    /// auto | fit | fit-shape | regression | geometry; empty: auto.
+    /// auto | fit | fit-shape | regression | geometry | detector; empty: auto.
     #[prost(string, tag = "3")]
     pub method: ::prost::alloc::string::String,
     /// Optional camera intrinsics.
