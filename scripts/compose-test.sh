@@ -3,7 +3,7 @@
 # balancer, under load and failures, and prints the figures (docs/DEPLOY.md, "What the failure
 # tests showed"):
 #
-#   scripts/compose-test.sh      # as root, or a user of the docker group; about 2 minutes
+#   scripts/compose-test.sh      # as root, or a user of the docker group; about 3 minutes
 #
 # Phases, each bounded by `timeout` (the whole under 8 minutes once the images exist):
 #  1. the images, made if missing (scripts/images.sh, scripts/lb-image.sh), a venv with requests
@@ -21,7 +21,12 @@
 #  7. under load: `docker kill` of one replica (failures counted, the others carry on);
 #  8. under load: `docker network disconnect` of one replica (the time until HAProxy marks it
 #     DOWN, then reconnected and UP again);
-#  9. under load: connection ageing (every replica asks the connections HAProxy keeps to it to
+#  9. WebSocket streams through the balancer (scripts/compose_ws.py): a stream silent for 15 s
+#     stays open (HAProxy's `timeout tunnel`); 6 streams of a rendered head trajectory at 30
+#     frames a second, smoothed, while one replica is killed (`docker kill`), then again while
+#     one is restarted (`docker-compose restart`: SIGTERM, the drain, start): the closes the
+#     clients see, their reconnection through the balancer to a live replica, the fresh track;
+# 10. under load: connection ageing (every replica asks the connections HAProxy keeps to it to
 #     close, again and again, within a bound derived from the configured age and grace).
 # Every request and every failure is counted and printed with its reason. Cleanup (trap): the
 # load driver stopped, `docker-compose down -v`, the token removed. Exit 0 with a SKIP line
@@ -88,14 +93,15 @@ t_images=$(($(date +%s) - t_all))
 mkdir -p "$out"
 : >"$out/figures.tsv"
 figure() { printf '%s\t%s\n' "$1" "$2" >>"$out/figures.tsv"; }
-VENV_TIMEOUT=300 venv_ensure --check 'import grpc, grpc_tools, requests' "$venv" \
-  requests grpcio grpcio-tools
+VENV_TIMEOUT=300 venv_ensure --check 'import grpc, grpc_tools, requests, websockets' "$venv" \
+  requests grpcio grpcio-tools 'websockets==15.0.1'
 rm -rf "$venv/stubs" && mkdir -p "$venv/stubs"
 "$venv/bin/python" -m grpc_tools.protoc -Iproto --python_out="$venv/stubs" \
   --grpc_python_out="$venv/stubs" proto/facepose/v1/pose.proto
 export FACEPOSE_STUBS=$repo/$venv/stubs FACEPOSE_LB=127.0.0.1:$lb_port \
   FACEPOSE_LB_STATS=127.0.0.1:$stats_port
 py=("$venv/bin/python" scripts/compose_load.py)
+wspy=("$venv/bin/python" scripts/compose_ws.py)
 
 # ---- 2. up. The token: a private folder (0700), the file readable by the container's uid.
 # The compose file's variables go into an env file beside it, given with --env-file: nothing
@@ -104,7 +110,7 @@ py=("$venv/bin/python" scripts/compose_load.py)
 say "phase 2: docker-compose up (project $project, 127.0.0.1:$lb_port, stats :$stats_port)"
 tokdir=$(mktemp -d)
 (umask 022 && openssl rand -hex 32 >"$tokdir/token")
-# Phases 2-8 run with the compose file's connection ages (5m, grace 30s). Phase 9 recreates
+# Phases 2-9 run with the compose file's connection ages (5m, grace 30s). Phase 10 recreates
 # the replicas with ages short enough to happen several times in it. Not the short ages from
 # the start: at 8 s with a 4 s grace, a call held by the network cut of phase 8 outlived its
 # connection's age and grace, and the replica cut the connection under the answer it had just
@@ -300,9 +306,49 @@ load_stop netcut 8
 figure '`docker network disconnect` of one replica under load, then `connect`' \
   "$(load_text netcut); DOWN in HAProxy $(echo "$n" | jq .after_s) s after the cut, UP $(echo "$u" | jq .after_s) s after the reconnection"
 
-# ---- 9. connection ageing under load: the replicas ask HAProxy's connections to close after
+# ---- 9. WebSocket streams through the balancer (HAProxy's backend `streams`: HTTP/1.1 to the
+# replicas, `timeout tunnel`, leastconn). Before the ageing phase: its short ages would cut
+# the streams under the test.
+say "phase 9: WebSocket streams through the balancer"
+q=$(timeout 60 "${wspy[@]}" quiet --seconds 15) || true
+[ -n "$q" ] || q='{"ok": false, "problems": ["compose_ws.py quiet printed nothing"]}'
+say "  silent stream: $q"
+echo "$q" | jq -e .ok >/dev/null ||
+  fail "a WebSocket stream silent for 15 s was cut by the balancer: $(echo "$q" | jq -r '.problems | join("; ")')"
+figure 'a WebSocket stream silent for 15 s (past `timeout server`, 12 s) through the balancer' \
+  "$(echo "$q" | jq -r 'if .ok then "still open: the frame after the silence answered on the same connection (\(.served_by))" else "cut: \(.problems | join("; "))" end')"
+ws_streams() { # NAME VICTIM CODE COMMAND...: 6 streams while COMMAND hits VICTIM; the figure
+  local name=$1 victim=$2 code=$3 w
+  shift 3
+  w=$(timeout 120 "${wspy[@]}" streams --victim "$victim" --expect-code "$code" -- "$@") || true
+  [ -n "$w" ] || w='{"ok": false, "problems": ["compose_ws.py printed nothing"]}'
+  echo "$w" >"$out/ws-$name.json"
+  say "  $(echo "$w" | jq -c 'del(.per_stream, .problems, .ok)')"
+  echo "$w" | jq -c '.per_stream[]? | select(.close)' | sed 's/^/    reconnected: /'
+  if ! echo "$w" | jq -e .ok >/dev/null; then
+    fail "WebSocket streams across $name of $victim: $(echo "$w" | jq -r '.problems | join("; ")')"
+    return 0
+  fi
+  figure "WebSocket streams across \`$name\` of one replica (6 streams, 30 frames/s each, Kalman smoothing)" \
+    "$(echo "$w" | jq -r 'def r(x): if x.min == x.max then "\(x.min)" else "\(x.min)–\(x.max)" end;
+      [.per_stream[] | select(.close)] as $re |
+      "\(.streams) streams (\([.spread[] | tostring] | join("/")) over the replicas; \(.connections) connections opened in all), \(.on_victim) on \(.victim); before: \(.before.sent) frames sent, \(.before.answered) answered, all smoothed; " +
+      "those \(.on_victim) saw \([.close_codes | to_entries[] | "\(.key) ×\(.value)"] | join(", ")) (\(.close_reasons | join("; "))) \(r(.close_after_action_s)) s after the command began, the others nothing; " +
+      "reconnected through the balancer to \([$re[] | .served_by[-1]] | unique | join(", ")) \(r(.reconnect_s)) s after the close (first answer \(r(.first_answer_after_close_s)) s; \(.failed_handshakes) handshakes refused); " +
+      "lost: \(.unanswered_on_closed) frames unanswered on the closed connections, \(.skipped_while_reconnecting) not sent while reconnecting; " +
+      "\(.answers_after_reconnect) answers after, on a fresh track (its first answer is the raw estimate: Δ \([$re[] | .first_answer_vs_raw_deg] | max)°; the old track gave answers up to \([$re[] | .old_answers_vs_raw_max_deg] | min)–\([$re[] | .old_answers_vs_raw_max_deg] | max)° from theirs)"')"
+}
+say "  docker kill facepose-1 with 6 streams open"
+ws_streams 'docker kill' facepose-1 1006 docker kill "$(cid_of facepose-1)"
+timeout 60 "${dc[@]}" start facepose-1 >/dev/null 2>&1
+wait_up 60 || fail "facepose-1 not UP again within 60 s of docker-compose start"
+say "  docker-compose restart facepose-2 with 6 streams open"
+ws_streams 'docker-compose restart' facepose-2 1001 "${dc[@]}" restart -t 20 facepose-2
+wait_up 60 || fail "facepose-2 not UP again within 60 s of docker-compose restart"
+
+# ---- 10. connection ageing under load: the replicas ask HAProxy's connections to close after
 # about FACEPOSE_MAX_CONNECTION_AGE (GOAWAY); HAProxy opens new ones; no request may fail.
-say "phase 9: connection ageing under load (age $max_age, grace $age_grace)"
+say "phase 10: connection ageing under load (age $max_age, grace $age_grace)"
 printf 'FACEPOSE_MAX_CONNECTION_AGE=%s\nFACEPOSE_MAX_CONNECTION_AGE_GRACE=%s\n' "$max_age" "$age_grace" \
   >>"$tokdir/compose.env"
 t=$(date +%s.%N)
@@ -350,7 +396,8 @@ lb_connects() { # HAProxy's connection attempts to the replicas so far (the "con
     NR == 1 { for (i = 1; i <= NF; i++) if ($i == "connect") c = i; next }
     $1 == "replicas" && $2 == "BACKEND" { print $c }'
 }
-# Each replica's address, looked up again (a replica reconnected in phase 8 may have another).
+# Each replica's address, looked up again (one reconnected in phase 8 or restarted in phase 9
+# may have another).
 declare -A ip_of
 for r in "${replicas[@]}"; do
   ip_of[$r]=$(docker inspect -f "{{(index .NetworkSettings.Networks \"$net\").IPAddress}}" "$(cid_of "$r")")
@@ -360,6 +407,12 @@ aged_of() { # facepose_connections_aged_total of replica $1, scraped at its own 
     awk '$1 == "facepose_connections_aged_total" { n = $2 } END { print n + 0 }'
 }
 load_start ageing
+# A WebSocket stream through the ageing, past one age and grace (period + 5 s): once upgraded,
+# the connection is the stream's and the replica no longer ages it (only the drain and the
+# stream's own bounds end it).
+long_s=$(awk -v p="$period" 'BEGIN { printf "%d", p + 5 }')
+timeout $((long_s + 30)) "${wspy[@]}" long --seconds "$long_s" >"$out/ws-long.json" &
+ws_pid=$!
 declare -A a_before a_now times
 c_before=$(lb_connects)
 for r in "${replicas[@]}"; do a_before[$r]=$(aged_of "$r"); a_now[$r]=${a_before[$r]}; times[$r]=; done
@@ -390,8 +443,14 @@ for r in "${replicas[@]}"; do
   ageing_text="$ageing_text, $r at${times[$r]} s"
 done
 say "  HAProxy's connections to the replicas: $c_before, then $c_after"
+wait "$ws_pid" || true
+l=$(cat "$out/ws-long.json")
+[ -n "$l" ] || l='{"ok": false, "problems": ["compose_ws.py long printed nothing"]}'
+say "  WebSocket stream meanwhile: $l"
+echo "$l" | jq -e .ok >/dev/null ||
+  fail "a WebSocket stream through the connection ageing: $(echo "$l" | jq -r '.problems | join("; ")')"
 figure "connection ageing under load (age $max_age, grace $age_grace): every replica ages 2 of HAProxy's connections" \
-  "$(load_text ageing); done $t s after the load was steady (bound $bound s); ageings seen${ageing_text#,}; HAProxy opened $((c_after - c_before)) connections"
+  "$(load_text ageing); done $t s after the load was steady (bound $bound s); ageings seen${ageing_text#,}; HAProxy opened $((c_after - c_before)) connections; $(echo "$l" | jq -r '"a WebSocket stream meanwhile: \(.seconds) s, \(.answered) of \(.sent) frames answered on one connection, closed \(.close[0]) by the client"')"
 
 say "the balancer's log (server state changes, requests not ended normally; last 40 lines):"
 "${dc[@]}" logs --no-color lb 2>/dev/null | grep -v '\[WARNING\]' | sed 's/^lb_1 *| /  /' | tail -40 || true
