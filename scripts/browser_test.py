@@ -20,7 +20,8 @@ demo, one with CORS off. The checks:
             server lists that origin, a TypeError when it does not
   demo stream  the demo's stream mode: a head moving, played in real time (the numbers shown
             change while it plays; the plot draws the raw and smoothed lines and the 90% bands:
-            pixels of each colour counted in the canvas), and the trajectory below from a file
+            pixels of each colour counted in the canvas), leaving the tab mid-replay stops it,
+            and the trajectory below from a file
   stream    scripts/browser_stream.html, served from the other origin, fetches a rendered
             trajectory (traj0: MediaPipe's 478 points per frame, the truth, the timestamps;
             written as JSON to the temp folder from tests/fixtures/rendered/) and streams it on
@@ -607,6 +608,25 @@ def main():
 
             checks.run("demo stream: a head moving, in real time: the numbers flow, the plot draws "
                        "raw, smoothed and the 90% bands", demo_synthetic)
+
+            def demo_leave():
+                page.click("#tab-stream")
+                page.select_option("#stream-source", "synthetic")
+                page.select_option("#stream-pace", "realtime")
+                page.click("#run-stream")
+                wait_for(page, lambda: int(attr(page, "data-stream-answered") or 0) > 5, "answers")
+                page.click("#tab-explore")
+                wait_for(page, lambda: attr(page, "data-stream-state") == "stopped", "the replay stopped")
+                stopped_at = int(attr(page, "data-stream-answered"))
+                page.wait_for_timeout(300)
+                assert int(attr(page, "data-stream-answered")) == stopped_at, "answers after leaving the tab"
+                page.click("#tab-stream")
+                first = json.loads(page.locator("#request-json").text_content())
+                assert first["frame_id"] == 0 and first["smoothing"]["enabled"] is True, first
+                assert "new WebSocket(" in page.locator("#fetch-code").text_content()
+                return f"stopped after {stopped_at} of 150 frames"
+
+            checks.run("demo stream: leaving the tab stops the replay", demo_leave)
 
             def demo_file():
                 page.click("#tab-stream")
