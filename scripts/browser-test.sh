@@ -8,7 +8,8 @@
 # refused; and that origin's page (scripts/browser_stream.html) streaming a rendered trajectory's
 # MediaPipe points (tests/fixtures/rendered/traj0.jsonl.gz, turned into JSON in the test's temp
 # folder) over GET /v1/pose:stream, smoothed and raw, judging in the page that smoothing cuts the
-# jitter and adds no error against the truth; not listed, its socket is refused (403).
+# jitter and adds no error against the truth (traj1 too: missed frames, relative truth); not
+# listed, its socket is refused (403).
 #
 #   scripts/browser-test.sh [--screenshot docs/demo.png]
 #
