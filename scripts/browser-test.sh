@@ -2,8 +2,14 @@
 # The demo page and the API from a browser: headless Chromium (Debian's `chromium`) driven by
 # Playwright (scripts/browser_test.py): /demo loads under its CSP with no console error and no
 # request to another origin; the pose explorer at several poses shows the API's own answer, near
-# the truth; the paste box with five-point, ibug68 (and MediaPipe) faces; a page of another
-# origin calling POST /v1/pose with fetch(), allowed by --cors-origins or refused.
+# the truth; the paste box with five-point, ibug68 (and MediaPipe) faces; the demo's stream mode
+# (plays in real time, plots raw and smoothed with the 90% bands; replays a trajectory file); a
+# page of another origin calling POST /v1/pose with fetch(), allowed by --cors-origins or
+# refused; and that origin's page (scripts/browser_stream.html) streaming a rendered trajectory's
+# MediaPipe points (tests/fixtures/rendered/traj0.jsonl.gz, turned into JSON in the test's temp
+# folder) over GET /v1/pose:stream, smoothed and raw, judging in the page that smoothing cuts the
+# jitter and adds no error against the truth (traj1 too: missed frames, relative truth); not
+# listed, its socket is refused (403).
 #
 #   scripts/browser-test.sh [--screenshot docs/demo.png]
 #

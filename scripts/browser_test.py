@@ -1,7 +1,7 @@
 """The demo page (GET /demo) and the API from a browser, in headless Chromium driven by
 Playwright. Run by scripts/browser-test.sh, which makes the venv and finds the binary:
 
-    python scripts/browser_test.py BIN [--chromium /usr/bin/chromium] [--screenshot PNG]
+    python scripts/browser_test.py BIN [--chromium /usr/bin/chromium] [--screenshot PNG] [--only PREFIX]
 
 Starts its own servers on free loopback ports (an empty models folder each: the embedded
 default model): one that lists the cross-origin page's origin in --cors-origins and serves the
@@ -18,11 +18,27 @@ demo, one with CORS off. The checks:
             a bad paste shows the server's message
   cors      a page of another origin calls POST /v1/pose with fetch(): the pose when the
             server lists that origin, a TypeError when it does not
+  demo stream  the demo's stream mode: a head moving, played in real time (the numbers shown
+            change while it plays; the plot draws the raw and smoothed lines and the 90% bands:
+            pixels of each colour counted in the canvas), leaving the tab mid-replay stops it,
+            and the trajectory below from a file
+  stream    scripts/browser_stream.html, served from the other origin, fetches a rendered
+            trajectory (traj0: MediaPipe's 478 points per frame, the truth, the timestamps;
+            written as JSON to the temp folder from tests/fixtures/rendered/) and streams it on
+            two WebSockets, smoothing on and off; the page judges the figures itself (smoothed
+            jitter at most 0.75 of the raw, error at most 1.05 of the raw + 0.1 degree) and the
+            script prints them. Then traj1 (27 frames MediaPipe missed, sent as frames without a
+            face; relative truth: the error scored with each angle's mean offset removed). The
+            same page with smoothing off on both must fail; served to a
+            server that does not list its origin, the socket errors and closes (1006), the
+            console shows the 403, and a handshake with that Origin gets 403 forbidden
 
 Prints one line per check and a summary line "N passed, M failed"; exits 1 on any failure.
 """
 
 import argparse
+import gzip
+import http.client
 import http.server
 import json
 import math
@@ -179,15 +195,53 @@ def page_server(directory):
     return server
 
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RENDERED = os.path.join(ROOT, "tests", "fixtures", "rendered")
+
+
+def trajectory_json(path):
+    """A rendered trajectory (tests/fixtures/rendered/README.md) as the sequence the stream
+    pages replay: MediaPipe's 478 normalized points per frame (null where it found no face),
+    the timestamps and the true angles."""
+    records = [json.loads(line) for line in gzip.open(path, "rt")]
+    records.sort(key=lambda r: r["trajectory"]["frame"])
+    first = records[0]
+    return {
+        "name": f"{first['trajectory']['id']} ({first['identity']}, {first['geometry']}, {first['camera']['kind']})",
+        "scheme": "mediapipe478",
+        "image_size": first["image_size"],
+        "truth_absolute": first["truth_absolute"],
+        "frames": [{
+            "timestamp_us": r["trajectory"]["timestamp_us"],
+            "landmarks": r["mediapipe"]["landmarks"] if r["mediapipe"] else None,
+            "truth": {k: r["truth"][k] for k in ("yaw", "pitch", "roll")},
+        } for r in records],
+    }
+
+
+def ws_handshake(base, origin):
+    """A WebSocket handshake to the stream route with `origin`: (status, body)."""
+    host = base.split("://", 1)[1]
+    conn = http.client.HTTPConnection(host, timeout=TIMEOUT_S)
+    conn.request("GET", "/v1/pose:stream", headers={
+        "Origin": origin, "Connection": "Upgrade", "Upgrade": "websocket",
+        "Sec-WebSocket-Version": "13", "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
+    })
+    r = conn.getresponse()
+    body = r.read() if r.status != 101 else b""
+    conn.close()
+    return r.status, body
+
+
 # ---- driving the page ----------------------------------------------------------------------
 def attr(page, name):
     return page.locator("body").get_attribute(name)
 
 
-def wait_for(page, predicate, what):
+def wait_for(page, predicate, what, timeout=TIMEOUT_S):
     """Polls `predicate()` (the page's CSP forbids the string evaluation that Playwright's
     wait_for_function needs)."""
-    deadline = time.time() + TIMEOUT_S
+    deadline = time.time() + timeout
     while time.time() < deadline:
         if predicate():
             return
@@ -222,10 +276,13 @@ def set_number(page, name, value):
 
 
 class Checks:
-    def __init__(self):
+    def __init__(self, only=None):
         self.results = []
+        self.only = only
 
     def run(self, name, fn, *args):
+        if self.only and not any(name.startswith(o) for o in self.only.split(",")):
+            return
         t0 = time.time()
         try:
             note = fn(*args)
@@ -264,6 +321,8 @@ def main():
     ap.add_argument("binary")
     ap.add_argument("--chromium", default="/usr/bin/chromium")
     ap.add_argument("--screenshot", help="save a screenshot of the explorer here (PNG)")
+    ap.add_argument("--only", help="run only the checks whose name starts with one of these "
+                    "(comma-separated; the demo's checks need \"page: /demo\" first)")
     args = ap.parse_args()
 
     work = tempfile.mkdtemp(prefix="facepose-browser-")
@@ -271,11 +330,19 @@ def main():
     os.makedirs(site)
     with open(os.path.join(site, "call.html"), "w") as f:
         f.write(CROSS_ORIGIN_PAGE)
+    with open(os.path.join(ROOT, "scripts", "browser_stream.html")) as f, \
+            open(os.path.join(site, "stream.html"), "w") as g:
+        g.write(f.read())
+    for name in ("traj0", "traj1"):
+        with open(os.path.join(site, name + ".json"), "w") as f:
+            json.dump(trajectory_json(os.path.join(RENDERED, name + ".jsonl.gz")), f, separators=(",", ":"))
+    with open(os.path.join(site, "traj0.json")) as f:
+        sequence = json.load(f)
     other = page_server(site)
     other_origin = f"http://127.0.0.1:{other.server_address[1]}"
 
     services = []
-    checks = Checks()
+    checks = Checks(args.only)
     started = time.time()
     try:
         open_to_page = Service(args.binary, work, "cors-on", "--cors-origins", other_origin)
@@ -400,7 +467,8 @@ def main():
                 ("mediapipe", "mediapipe"),
             ]:
                 checks.run(f"convention selector: {choice} shows the API's numbers", convention(choice, expect_name))
-            page.select_option("#convention", "")
+            if page.url.endswith("/demo"):
+                page.select_option("#convention", "")
 
             def paste(text, scheme, truth, tol, normalized=None, size=None):
                 page.click("#tab-paste")
@@ -471,6 +539,115 @@ def main():
 
             checks.run("paste: a wrong point count shows the server's message", paste_error)
 
+            def plot_pixels():
+                """Pixels of the stream plot by colour: the smoothed line, the raw line, and
+                the smoothed band (read in the page's canvas)."""
+                return page.evaluate("""() => {
+                    const c = document.getElementById("stream-plot");
+                    // A copy read once (reading the page's canvas again and again makes
+                    // Chromium warn in the console).
+                    const copy = document.createElement("canvas");
+                    copy.width = c.width;
+                    copy.height = c.height;
+                    const ctx = copy.getContext("2d", { willReadFrequently: true });
+                    ctx.drawImage(c, 0, 0);
+                    const d = ctx.getImageData(0, 0, c.width, c.height).data;
+                    const n = { smooth: 0, raw: 0, band: 0 };
+                    for (let i = 0; i < d.length; i += 4) {
+                        const [r, g, b] = [d[i], d[i + 1], d[i + 2]];
+                        if (b > 200 && r < 90 && g < 140) n.smooth += 1;
+                        else if (r > 200 && g > 80 && g < 150 && b < 70) n.raw += 1;
+                        else if (b > 200 && b > r + 12 && r > 150) n.band += 1;
+                    }
+                    return n;
+                }""")
+
+            def demo_stream(source, pace):
+                page.click("#tab-stream")
+                page.select_option("#stream-source", source)
+                page.select_option("#stream-pace", pace)
+                page.click("#run-stream")
+                samples = []
+                deadline = time.time() + 60
+                while True:
+                    state = attr(page, "data-stream-state")
+                    if state == "done":
+                        break
+                    assert state in ("loading", "running"), \
+                        f"the stream {state}: {page.locator('#error').text_content()}"
+                    assert time.time() < deadline, "the replay did not end in 60 s"
+                    if pace == "realtime":
+                        samples.append((int(attr(page, "data-stream-answered") or 0),
+                                        page.locator("#est-yaw").text_content()))
+                        page.wait_for_timeout(400)
+                    else:
+                        page.wait_for_timeout(50)
+                page.wait_for_timeout(100)  # the last frame drawn
+                stats = page.locator("#stream-stats")
+                figures = json.loads(stats.get_attribute("data-figures"))
+                plot = page.locator("#stream-plot")
+                pixels = plot_pixels()
+                n = int(attr(page, "data-stream-answered"))
+                assert figures["answered"] == n == int(attr(page, "data-stream-sent")), figures
+                assert int(plot.get_attribute("data-drawn")) >= 2 * 3 * n, plot.get_attribute("data-drawn")
+                assert int(plot.get_attribute("data-bands")) >= 6, plot.get_attribute("data-bands")
+                assert pixels["smooth"] > 500 and pixels["raw"] > 200 and pixels["band"] > 2000, pixels
+                assert page.locator("#est-yaw").text_content() != "–", "no pose shown"
+                raw, smooth = figures["raw"]["mean"], figures["smooth"]["mean"]
+                assert smooth["step"] < raw["step"], f"the smoothed angles move more than the raw: {figures}"
+                return n, samples, figures, pixels, stats.text_content()
+
+            def demo_synthetic():
+                n, samples, figures, pixels, text = demo_stream("synthetic", "realtime")
+                assert n == 150, n
+                # Numbers flow: the count answered and the yaw shown change while it plays.
+                counts = [c for c, _ in samples]
+                yaws = {y for _, y in samples if y != "–"}
+                assert len(samples) >= 4 and len(set(counts)) >= 3 and counts == sorted(counts), samples
+                assert len(yaws) >= 3, samples
+                raw, smooth = figures["raw"]["mean"], figures["smooth"]["mean"]
+                assert smooth["jitter"] < 0.75 * raw["jitter"], figures
+                return (f"{len(samples)} samples while playing, answered {counts}; jitter vs truth raw "
+                        f"{raw['jitter']:.2f} smoothed {smooth['jitter']:.2f} deg/frame; pixels {pixels}")
+
+            checks.run("demo stream: a head moving, in real time: the numbers flow, the plot draws "
+                       "raw, smoothed and the 90% bands", demo_synthetic)
+
+            def demo_leave():
+                page.click("#tab-stream")
+                page.select_option("#stream-source", "synthetic")
+                page.select_option("#stream-pace", "realtime")
+                page.click("#run-stream")
+                wait_for(page, lambda: int(attr(page, "data-stream-answered") or 0) > 5, "answers")
+                page.click("#tab-explore")
+                wait_for(page, lambda: attr(page, "data-stream-state") == "stopped", "the replay stopped")
+                stopped_at = int(attr(page, "data-stream-answered"))
+                page.wait_for_timeout(300)
+                assert int(attr(page, "data-stream-answered")) == stopped_at, "answers after leaving the tab"
+                page.click("#tab-stream")
+                first = json.loads(page.locator("#request-json").text_content())
+                assert first["frame_id"] == 0 and first["smoothing"]["enabled"] is True, first
+                assert "new WebSocket(" in page.locator("#fetch-code").text_content()
+                return f"stopped after {stopped_at} of 150 frames"
+
+            checks.run("demo stream: leaving the tab stops the replay", demo_leave)
+
+            def demo_file():
+                page.click("#tab-stream")
+                page.select_option("#stream-source", "file")
+                page.set_input_files("#stream-file", os.path.join(site, "traj0.json"))
+                wait_for(page, lambda: "150 frames" in page.locator("#stream-file-info").text_content(),
+                         "the file read")
+                n, _, figures, pixels, text = demo_stream("file", "fast")
+                assert n == len(sequence["frames"]), n
+                raw, smooth = figures["raw"]["mean"], figures["smooth"]["mean"]
+                assert smooth["jitter"] < 0.75 * raw["jitter"], figures
+                assert smooth["error"] <= 1.05 * raw["error"] + 0.1, figures
+                return text
+
+            checks.run("demo stream: the trajectory's MediaPipe points from a file, as fast as answered",
+                       demo_file)
+
             def clean():
                 errors = [f"{t}: {m}" for t, m in console
                           if t in ("error", "warning") and (t, m) not in expected_console]
@@ -511,6 +688,76 @@ def main():
                     assert result.get("error") == "TypeError", result
                     return f"{result['error']}: {result['message']}"
                 return check
+
+            def stream_page(service, smooth=True, data="traj0"):
+                """stream.html of the other origin, streaming the trajectory to `service`:
+                its verdict (data-result) and the console messages."""
+                other_page = context.new_page()
+                messages = []
+                other_page.on("console", lambda m: messages.append(m.text))
+                ws = service.base.replace("http://", "ws://")
+                other_page.goto(f"{other_origin}/stream.html?ws={ws}&data={data}.json"
+                                + ("" if smooth else "&smooth=0"))
+                wait_for(other_page, lambda: other_page.locator("body").get_attribute("data-result"),
+                         "the stream page's verdict", timeout=90)
+                result = json.loads(other_page.locator("body").get_attribute("data-result"))
+                other_page.close()
+                return result, messages
+
+            def figures_note(r):
+                raw, sm = r["raw"]["mean"], r["smoothed"]["mean"]
+                per = ", ".join(f"{k} {r['raw'][k]['jitter']:.2f}->{r['smoothed'][k]['jitter']:.2f}"
+                                for k in ("yaw", "pitch", "roll"))
+                return (f"{r['name']}, {r['detected']}/{r['frames']} frames, {r['ms']} ms: "
+                        f"jitter |d(angle)-d(truth)| raw {raw['jitter']:.3f} smoothed {sm['jitter']:.3f} "
+                        f"deg/frame (x{r['jitter_ratio']:.2f}; {per}); mean |d(angle)| raw {raw['step']:.3f} "
+                        f"smoothed {sm['step']:.3f}; error raw {raw['error']:.2f} smoothed {sm['error']:.2f} deg "
+                        f"(offset removed {raw['error_offset_removed']:.2f} / {sm['error_offset_removed']:.2f}); "
+                        f"90% coverage raw {100 * raw['coverage90']:.0f}% smoothed {100 * sm['coverage90']:.0f}%, "
+                        f"width {raw['width90']:.1f} / {sm['width90']:.1f} deg, centre off the angle "
+                        f"{raw['centre90']:.2f} / {sm['centre90']:.2f} deg")
+
+            def stream_smooths():
+                result, _ = stream_page(open_to_page)
+                assert result.get("pass") is True, f"the page's verdict: {result.get('failures')} {result}"
+                return figures_note(result)
+
+            checks.run("stream: a page of a listed origin streams MediaPipe's points over the WebSocket; "
+                       "in the page, smoothing cuts the jitter and adds no error", stream_smooths)
+
+            def stream_relative():
+                result, _ = stream_page(open_to_page, data="traj1")
+                assert result.get("pass") is True, f"the page's verdict: {result.get('failures')} {result}"
+                assert result["error_scored"] == "error_offset_removed" and result["detected"] < result["frames"], result
+                return figures_note(result)
+
+            checks.run("stream: the same with frames MediaPipe missed and a relative truth (traj1)",
+                       stream_relative)
+
+            def stream_control():
+                result, _ = stream_page(open_to_page, smooth=False)
+                assert result.get("pass") is False, f"the page passed with smoothing off: {result}"
+                assert any("jitter" in f for f in result["failures"]), result["failures"]
+                return f"the page fails it: {result['failures'][0]}"
+
+            checks.run("stream: the same page with smoothing off on both sockets fails (negative control)",
+                       stream_control)
+
+            def stream_refused():
+                result, messages = stream_page(closed)
+                assert result.get("socket_failed") is True, result
+                failure = result["failure"]
+                assert failure.get("errored") is True and failure.get("code") == 1006 \
+                    and failure.get("received") == 0, failure
+                said = [m for m in messages if "pose:stream" in m and "403" in m]
+                assert said, f"no 403 in the console: {messages}"
+                status, body = ws_handshake(closed.base, other_origin)
+                assert status == 403 and json.loads(body)["error"]["code"] == "forbidden", (status, body)
+                status_ok, _ = ws_handshake(open_to_page.base, other_origin)
+                assert status_ok == 101, f"the listed origin's handshake got {status_ok}"
+                return f"error then close {failure['code']}; console: {said[0]}; server: 403 (101 when listed)"
+
+            checks.run("stream: a page of an origin not listed cannot open the socket (403)", stream_refused)
 
             checks.run("cors: fetch() from a listed origin gets the pose", cross_origin(open_to_page, True))
             checks.run("cors: fetch() from an origin not listed fails with a TypeError",

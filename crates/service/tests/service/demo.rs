@@ -58,7 +58,12 @@ async fn the_demo_page_is_html_under_a_strict_policy() {
     assert_eq!(lower.matches("<script").count(), 1);
     assert_eq!(lower.matches("<style").count(), 1);
     // It calls this server's routes, relative to its own origin.
-    for route in ["\"/v1/pose\"", "\"/v1/models\"", "/schemes/"] {
+    for route in [
+        "\"/v1/pose\"",
+        "\"/v1/models\"",
+        "/schemes/",
+        "/v1/pose:stream",
+    ] {
         assert!(html.contains(route), "{route}");
     }
     // HEAD answers too (a link checker, a proxy's probe), and the page is no API operation.
