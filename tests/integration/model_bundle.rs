@@ -93,8 +93,9 @@ fn the_default_model_rebuilds_byte_for_byte() {
 }
 
 /// The default bundle as schema 1 wrote it: no stored visibility (whose loading runs HPR), and
-/// without the `dlib5` subset, MediaPipe's face mesh and the uncertainty's calibration, which
-/// came later (with their sources and command-line options taken out of the provenance).
+/// without the `dlib5` subset, MediaPipe's face mesh, the uncertainty's calibration and the
+/// detector regression, which came later (with their sources and command-line options taken out
+/// of the provenance).
 fn as_schema_1() -> Bundle {
     let mut b = Bundle::parse(DEFAULT_BUNDLE).unwrap();
     b.schema_version = 1;
@@ -103,9 +104,12 @@ fn as_schema_1() -> Bundle {
     b.regressions.retain(|r| r.scheme != "dlib5");
     b.mesh = None;
     b.calibration = None;
+    b.detector_regressions.clear();
     let p = &mut b.provenance;
     p.sources.retain(|s| {
-        !(s.path.ends_with("canonical_face_468.json") || s.path.ends_with("aflw2000_dev.jsonl"))
+        !(s.path.ends_with("canonical_face_468.json")
+            || s.path.ends_with("aflw2000_dev.jsonl")
+            || s.path.starts_with("tests/fixtures/rendered/"))
     });
     p.command = p
         .command
@@ -116,7 +120,8 @@ fn as_schema_1() -> Bundle {
         .replace(
             " --calibrate ../shared/data/aflw2000/aflw2000_dev.jsonl",
             "",
-        );
+        )
+        .replace(" --detector-renders tests/fixtures/rendered", "");
     p.notes = p.notes.split("; face mesh:").next().unwrap().to_string();
     b.checksum = b.compute_checksum().unwrap();
     b

@@ -79,25 +79,33 @@ pub fn train_mediapipe(
         &samples,
     )?;
     // Each sample answered by the fold that did not see its identity, through the estimator
-    // itself, so that the raw spread and misfit are the served ones.
-    let mut cal = Vec::with_capacity(samples.len());
+    // itself, so that the raw spread and misfit are the served ones; the model gets back the
+    // regressions it had whatever happens.
     let had = std::mem::take(&mut model.detectors);
-    for (g, fold) in fitted.folds.iter().enumerate() {
+    let cal = fold_samples(model, &fitted.folds, &samples, &used);
+    model.detectors = had;
+    let group = fit_group(&cal?, Method::Detector, PointClass::Dense)?;
+    Ok((fitted.regression, group))
+}
+
+/// The calibration samples of method `detector`: each of `samples` answered by its group's
+/// fold regression (installed in `model` in turn).
+fn fold_samples(
+    model: &mut PoseModel,
+    folds: &[DetectorRegression],
+    samples: &[DetectorSample],
+    records: &[&RenderedRecord],
+) -> Result<Vec<Sample>> {
+    let opts = EstimateOptions {
+        method: Method::Detector,
+        camera: None,
+        style: LandmarkStyle::Projected,
+    };
+    let mut cal = Vec::with_capacity(samples.len());
+    for (g, fold) in folds.iter().enumerate() {
         model.detectors = vec![fold.clone()];
-        let m = &*model;
-        for (s, r) in samples.iter().zip(&used).filter(|(s, _)| s.group == g) {
-            let opts = EstimateOptions {
-                method: Method::Detector,
-                camera: None,
-                style: LandmarkStyle::Projected,
-            };
-            let e = match estimate_with(m, MEDIAPIPE478, &s.landmarks, &opts) {
-                Ok(e) => e,
-                Err(e) => {
-                    model.detectors = had;
-                    return Err(e);
-                }
-            };
+        for (s, r) in samples.iter().zip(records).filter(|(s, _)| s.group == g) {
+            let e = estimate_with(model, MEDIAPIPE478, &s.landmarks, &opts)?;
             if let Some(raw) = e.spread {
                 cal.push(Sample {
                     method: Method::Detector,
@@ -109,7 +117,5 @@ pub fn train_mediapipe(
             }
         }
     }
-    model.detectors = had;
-    let group = fit_group(&cal, Method::Detector, PointClass::Dense)?;
-    Ok((fitted.regression, group))
+    Ok(cal)
 }

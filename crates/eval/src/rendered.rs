@@ -24,8 +24,8 @@
 //!   scored. That is the only way to score geometry `mediapipe` (relative truth), and a floor
 //!   for a per-identity calibration on `bfm`. It is fitted on the scored renders themselves (a
 //!   nuisance of the truth, not a learned correction); nothing here is fitted across
-//!   identities, so the train/test split only selects rows (item 3's corrections will be fitted
-//!   on `train`).
+//!   identities, so the train/test split only selects rows. The model's `detector` regression
+//!   is fitted on `train` ([`crate::detector_training`]), so only the `test` rows measure it.
 //! - **MediaPipe against dlib**: on geometry `bfm` (absolute) renders where both detected, the
 //!   mean difference of the angles (MediaPipe − dlib68) and each one's mean signed error.
 //! - **Trajectories** (set `trajectory`, 150 frames at 30 fps each): per trajectory and input,

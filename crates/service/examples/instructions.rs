@@ -14,7 +14,8 @@
 //! `…-dev-fitted` and `…-dev-reannotated` entries estimate instead the AFLW2000-3D dev faces
 //! (every |angle| <= 99°, as benches/real_faces.rs) in turn, one a call: with CALLS a multiple
 //! of their count, the mean over the faces (they need the shared data: FACEPOSE_DATA, else
-//! ../shared/data).
+//! ../shared/data). The `estimate-mediapipe-…` entries estimate MediaPipe's 478 points on the
+//! astronaut photograph (tests/fixtures/detectors/mediapipe.json).
 
 use facepose_app::estimate::{FaceInput, FaceScratch};
 use facepose_app::pose::{FaceSpec, estimate_face};
@@ -26,6 +27,7 @@ use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
 use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
+use facepose_core::shape::pixels::{ImageSize, pixel_shape};
 use facepose_files::data::{data_dir, load_aflw};
 use facepose_service::grpc::convert::pose_message;
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
@@ -40,7 +42,7 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 
 /// What can be counted.
-const ENTRIES: [&str; 17] = [
+const ENTRIES: [&str; 19] = [
     "none",
     "fit",
     "fit-shape",
@@ -58,7 +60,29 @@ const ENTRIES: [&str; 17] = [
     "estimate-auto-dev-reannotated",
     "estimate-fit-dev-fitted",
     "estimate-fit-dev-reannotated",
+    "estimate-mediapipe-auto",
+    "estimate-mediapipe-fit",
 ];
+
+/// MediaPipe's 478 points on the astronaut photograph (tests/fixtures/detectors/), in pixels.
+fn mediapipe_face() -> Shape2 {
+    let doc: serde_json::Value = serde_json::from_str(include_str!(
+        "../../../tests/fixtures/detectors/mediapipe.json"
+    ))
+    .expect("the MediaPipe fixture is JSON");
+    let face = &doc["faces"][0];
+    let pts: Vec<Option<[f64; 2]>> = face["landmarks"]
+        .as_array()
+        .expect("landmarks")
+        .iter()
+        .map(|p| Some([p[0].as_f64().unwrap(), p[1].as_f64().unwrap()]))
+        .collect();
+    let size = ImageSize {
+        width: face["image_size"][0].as_f64().unwrap(),
+        height: face["image_size"][1].as_f64().unwrap(),
+    };
+    pixel_shape(&pts, Some(size)).expect("the fixture's face converts")
+}
 
 /// The AFLW2000-3D dev faces of `set` (`fitted` or `reannotated`), every |angle| <= 99°.
 fn dev_faces(set: &str) -> Vec<Shape2> {
@@ -166,6 +190,7 @@ fn main() {
         Some((_, set)) => dev_faces(set),
         None => Vec::new(),
     };
+    let mp = mediapipe_face();
     let mut scratch = FaceScratch::default();
     for call in 0..calls {
         match what.as_str() {
@@ -215,6 +240,14 @@ fn main() {
                 let message = pose_message(&pose, Smoothed::default());
                 drop(black_box(message.encode_to_vec()));
             }
+            // MediaPipe's points as `auto` answers them (the detector regression) and as it
+            // did before it (the rigid fit of the mesh).
+            "estimate-mediapipe-auto" => drop(black_box(
+                estimate(&model, "mediapipe478", black_box(&mp), Method::Auto).unwrap(),
+            )),
+            "estimate-mediapipe-fit" => drop(black_box(
+                estimate(&model, "mediapipe478", black_box(&mp), Method::Fit).unwrap(),
+            )),
             dev_entry if dev_entry.contains("-dev-") => {
                 let method = if dev_entry.starts_with("estimate-auto") {
                     Method::Auto

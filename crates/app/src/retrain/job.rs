@@ -227,7 +227,9 @@ async fn steps(
 /// mesh (MediaPipe's canonical mesh) re-aligned to the new mean, so that web apps sending
 /// MediaPipe's points keep their answers across a retrain. It also takes the default model's
 /// uncertainty calibration (of the estimators on real ibug68 faces: uploaded shapes have no
-/// ground-truth pose to fit one on), so that answers keep their uncertainty.
+/// ground-truth pose to fit one on), so that answers keep their uncertainty, and its detector
+/// regressions (they read a detector's 2D points, whatever the mean shape; uploaded shapes have
+/// no detector output to train one on).
 fn carry_mesh(model: &mut PoseModel) -> Result<(), ServiceError> {
     if model.scheme.name != "ibug68" {
         return Ok(());
@@ -240,6 +242,7 @@ fn carry_mesh(model: &mut PoseModel) -> Result<(), ServiceError> {
             .map_err(|e| ServiceError::invalid(format!("aligning the face mesh failed: {e}")))?;
     }
     model.calibration = default.calibration.clone();
+    model.detectors = default.detectors.clone();
     Ok(())
 }
 
@@ -260,7 +263,8 @@ fn provenance(spec: &JobSpec, job: &str, kept: usize) -> Provenance {
     if spec.scheme.name == "ibug68" {
         notes.push_str(
             "; face mesh: the default model's (MediaPipe's canonical face mesh, Apache-2.0), \
-             aligned to the new mean; uncertainty calibration: the default model's",
+             aligned to the new mean; uncertainty calibration and detector regressions: the \
+             default model's",
         );
     }
     if !spec.notes.is_empty() {

@@ -7,7 +7,7 @@
 //!
 //! The input is the 2D shape (every point present, y up) turned in the image plane by minus
 //! the in-plane angle of a reference rotation (the rigid fit's, [`in_plane_angle`]), centred
-//! and energy-normalized ([`normalized_vector`]), and a constant; the output the first two rows
+//! and energy-normalized (as `crate::shape::normalized_vector` does), and a constant; the output the first two rows
 //! of the de-rolled rotation, made orthonormal (Gram-Schmidt) and completed by their cross
 //! product, then turned back. The rigid fit turns with the image exactly, so the answer does
 //! too: a camera rolled by θ changes the answer's roll by θ and nothing else (a regression on
@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 use crate::geometry::geodesic_deg;
-use crate::shape::{Shape2, normalized_vector};
+use crate::shape::Shape2;
 
 /// Outputs of the regression: the rotation's first two rows.
 const OUTPUTS: usize = 6;
@@ -84,6 +84,15 @@ fn about_camera_axis(angle: f64) -> Rotation3<f64> {
 /// The input vector of a face: its shape turned by `-angle` in the image plane (y up),
 /// normalized, and a constant. Every point must be present (a detector gives them all).
 pub fn input(landmarks: &Shape2, angle: f64) -> Result<Vec<f64>> {
+    let mut v = vec![0.0; 2 * landmarks.len() + 1];
+    each_input(landmarks, angle, |i, x| v[i] = x)?;
+    Ok(v)
+}
+
+/// Calls `f(i, xᵢ)` for each input of [`input`] in turn, without collecting them: the points
+/// turned by `-angle` (y up), centred, over the norm of the whole centred vector (as
+/// `crate::shape::normalized_vector`), then the constant 1.
+fn each_input(landmarks: &Shape2, angle: f64, mut f: impl FnMut(usize, f64)) -> Result<()> {
     let missing = landmarks.len() - landmarks.n_present();
     if missing > 0 {
         return Err(Error::param(
@@ -95,20 +104,32 @@ pub fn input(landmarks: &Shape2, angle: f64) -> Result<Vec<f64>> {
             ),
         ));
     }
-    let (c, s) = ((-angle).cos(), (-angle).sin());
-    let turned = Shape2::full(
-        landmarks
-            .points()
-            .iter()
-            .map(|p| {
-                let (x, y) = (p.x, -p.y);
-                nalgebra::Vector2::new(c * x - s * y, s * x + c * y)
-            })
-            .collect(),
-    )?;
-    let (mut v, _) = normalized_vector(&turned)?;
-    v.push(1.0);
-    Ok(v)
+    let pts = landmarks.points();
+    if pts.len() < 2 {
+        return Err(Error::too_few("normalized shape", 2, pts.len()));
+    }
+    let n = pts.len() as f64;
+    let (sx, sy) = pts.iter().fold((0.0, 0.0), |(a, b), p| (a + p.x, b - p.y));
+    let (cx, cy) = (sx / n, sy / n);
+    let norm = pts
+        .iter()
+        .map(|p| (p.x - cx).powi(2) + (-p.y - cy).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    // A turn keeps the norm and the centroid's distance; the check is normalized_vector's.
+    if norm.is_nan() || norm <= 1e-12 * (1.0 + cx.hypot(cy)) {
+        return Err(Error::Degenerate(
+            "all present points are at the same place".into(),
+        ));
+    }
+    let (c, s) = ((-angle).cos() / norm, (-angle).sin() / norm);
+    for (i, p) in pts.iter().enumerate() {
+        let (x, y) = (p.x - cx, -p.y - cy);
+        f(2 * i, c * x - s * y);
+        f(2 * i + 1, s * x + c * y);
+    }
+    f(2 * pts.len(), 1.0);
+    Ok(())
 }
 
 /// The rotation whose first two rows are nearest `out` (Gram-Schmidt).
@@ -145,19 +166,19 @@ impl DetectorRegression {
             });
         }
         let angle = in_plane_angle(reference);
-        let x = input(landmarks, angle)?;
         let mut out = [0.0; OUTPUTS];
-        for (xi, w) in x.iter().zip(&self.weights) {
+        each_input(landmarks, angle, |i, x| {
+            let w = &self.weights[i];
             for k in 0..OUTPUTS {
-                out[k] += xi * w[k];
+                out[k] += x * w[k];
             }
-        }
+        })?;
         Ok(about_camera_axis(angle) * rotation_of(&out)?)
     }
 
     /// Fails unless the weights are finite and the shape is consistent.
     pub fn validate(&self) -> Result<()> {
-        if self.weights.len() < 3 || self.weights.len() % 2 == 0 {
+        if self.weights.len() < 3 || self.weights.len().is_multiple_of(2) {
             return Err(Error::param(
                 "detector_regressions",
                 format!(
@@ -465,6 +486,30 @@ mod tests {
         assert!(err < 0.4 * naive, "error {err:.2}° against {naive:.2}°");
         assert_eq!(f.folds.len(), 4);
         f.regression.validate().unwrap();
+    }
+
+    #[test]
+    fn the_input_is_the_normalized_vector_of_the_turned_shape() {
+        let s = &faces(1.0, 3)[2];
+        let t: f64 = 0.3;
+        // The shape with y up, turned by -t: normalized_vector keeps y as given.
+        let turned: Vec<Vector2<f64>> = s
+            .landmarks
+            .points()
+            .iter()
+            .map(|p| {
+                let (x, y) = (p.x, -p.y);
+                let (c, n) = ((-t).cos(), (-t).sin());
+                Vector2::new(c * x - n * y, n * x + c * y)
+            })
+            .collect();
+        let (want, _) = crate::shape::normalized_vector(&Shape2::full(turned).unwrap()).unwrap();
+        let got = input(&s.landmarks, t).unwrap();
+        assert_eq!(got.len(), want.len() + 1);
+        assert_eq!(got[want.len()], 1.0);
+        for (g, w) in got.iter().zip(&want) {
+            assert!((g - w).abs() < 1e-12, "{g} {w}");
+        }
     }
 
     #[test]

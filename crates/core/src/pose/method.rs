@@ -254,15 +254,24 @@ impl Method {
     }
 
     /// The method `auto` stands for on MediaPipe mesh scheme `scheme` (`complete`: every
-    /// point present). The detector regression where the model has one for the scheme and the
-    /// face is complete: on MediaPipe's own points over rendered heads at known poses it is the
+    /// point present; `camera`: the request has camera intrinsics). The detector regression
+    /// where the model has one for the scheme, the face is complete and no camera asks for the
+    /// perspective refinement (the regression is weak-perspective): on MediaPipe's own points over rendered heads at known poses it is the
     /// most accurate (`facepose eval --protocol rendered`, docs/RESULTS.md). Otherwise the
     /// rigid fit of the mesh: on the mesh at known poses it is exact where the shape fit through
     /// the correspondence is 2-3° off (`facepose eval --protocol mediapipe`), and it is what
     /// MediaPipe's own pose does (a fit of this mesh).
-    pub fn resolve_on_mesh(self, model: &PoseModel, scheme: &str, complete: bool) -> Method {
+    pub fn resolve_on_mesh(
+        self,
+        model: &PoseModel,
+        scheme: &str,
+        complete: bool,
+        camera: bool,
+    ) -> Method {
         match self {
-            Method::Auto if complete && model.detector(scheme).is_some() => Method::Detector,
+            Method::Auto if complete && !camera && model.detector(scheme).is_some() => {
+                Method::Detector
+            }
             Method::Auto => Method::Fit,
             m => m,
         }

@@ -353,9 +353,9 @@ fn estimate_mesh(
     check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
     let complete = landmarks.n_present() == landmarks.len();
-    let method = opts
-        .method
-        .resolve_on_mesh(model, &ms.scheme.name, complete);
+    let method =
+        opts.method
+            .resolve_on_mesh(model, &ms.scheme.name, complete, opts.camera.is_some());
     let spec = method.spec();
     spec.check_camera(opts.camera.as_ref())?;
     // Every method's spread is taken on the model's own points (the mesh landmarks' means),
@@ -404,8 +404,9 @@ fn estimate_mesh(
         }
     };
     let a = &ms.scheme.anchors;
-    let (residual, mut misfit) =
+    let (residual, own_misfit) =
         residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
+    let mut misfit = own_misfit;
     if spec.misfit == Misfit::OfRigidFit {
         let f = match fitted {
             Some(f) => Ok(f),
@@ -415,8 +416,19 @@ fn estimate_mesh(
             self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
         });
     }
-    let spread =
-        raw_spread(&model.mean, &proxy, None, &rotation).map(|s| RawSpread { misfit, ..s });
+    // The detector regression's answer departs from the mesh's best fit by design, and how far
+    // it departs is what its calibration reads: points it was not trained on (a projection of
+    // the mesh itself, fitted exactly) get a wide interval, not the fit's tiny one. The rigid
+    // fit's misfit still says whether the points are a face.
+    let spread_misfit = if method == Method::Detector {
+        own_misfit
+    } else {
+        misfit
+    };
+    let spread = raw_spread(&model.mean, &proxy, None, &rotation).map(|s| RawSpread {
+        misfit: spread_misfit,
+        ..s
+    });
     let angles = EulerAngles::from_rotation(&rotation);
     Ok(Estimate {
         uncertainty: calibrated(model, method, PointClass::Dense, spread.as_ref(), &angles),
