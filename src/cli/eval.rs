@@ -686,7 +686,7 @@ fn run_rendered(
          score geometry `mediapipe` (relative truth). Errors in degrees; gain = least-squares slope of \
          the estimated on the true angle; coverage90 = share of answers whose 90% interval holds the \
          truth. This protocol fits nothing across identities; the model's `detector` regression \
-         (what `auto` runs on MediaPipe's 478 points) was fitted on the `train` identities only \
+         (method `detector`, on MediaPipe's 478 points) was fitted on the `train` identities only \
          (`facepose train --detector-renders`), so its `train` rows are in-sample and only its \
          `test` rows measure it. OpenCV SQPnP on the same points is not in \
          this report yet (a follow-up: it needs a script writing a fixture). \

@@ -83,7 +83,7 @@ pub struct TrainArgs {
     #[arg(long, value_name = "FILE")]
     calibrate: Option<PathBuf>,
     /// The rendered benchmark's directory (tests/fixtures/rendered): the bundle then stores the
-    /// detector regression of MediaPipe's 478 points (method `detector`, what `auto` runs on a
+    /// detector regression of MediaPipe's 478 points (method `detector`, asked by name on a
     /// complete `mediapipe478` face), trained on its `train` identities only, with its
     /// uncertainty calibrated on the answers of its leave-one-identity-out folds. Needs --mesh
     /// and --calibrate.

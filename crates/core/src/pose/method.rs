@@ -136,8 +136,7 @@ pub const METHODS: [MethodSpec; 6] = [
         method: Method::Auto,
         name: "auto",
         summary: "the most accurate method for the input: fit-shape for 12 or more points of \
-                  ibug68 or inner51, detector for a complete mediapipe478 face when the model \
-                  has its regression, fit otherwise (a MediaPipe mesh is fitted whole)",
+                  ibug68 or inner51, fit otherwise (a MediaPipe mesh is fitted whole)",
         needs: Needs::Nothing,
         perspective: true,
         misfit: Misfit::OfOwnPose,
@@ -253,25 +252,16 @@ impl Method {
         }
     }
 
-    /// The method `auto` stands for on MediaPipe mesh scheme `scheme` (`complete`: every
-    /// point present; `camera`: the request has camera intrinsics). The detector regression
-    /// where the model has one for the scheme, the face is complete and no camera asks for the
-    /// perspective refinement (the regression is weak-perspective): on MediaPipe's own points over rendered heads at known poses it is the
-    /// most accurate (`facepose eval --protocol rendered`, docs/RESULTS.md). Otherwise the
-    /// rigid fit of the mesh: on the mesh at known poses it is exact where the shape fit through
-    /// the correspondence is 2-3° off (`facepose eval --protocol mediapipe`), and it is what
-    /// MediaPipe's own pose does (a fit of this mesh).
-    pub fn resolve_on_mesh(
-        self,
-        model: &PoseModel,
-        scheme: &str,
-        complete: bool,
-        camera: bool,
-    ) -> Method {
+    /// The method `auto` stands for on a MediaPipe mesh scheme: the rigid fit of the mesh. On
+    /// the mesh at known poses it is exact where the shape fit through the correspondence is
+    /// 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md), and it is what
+    /// MediaPipe's own pose does (a fit of this mesh). Not `detector`: more accurate on
+    /// MediaPipe Face Mesh's own points over rendered heads (`facepose eval --protocol
+    /// rendered`), it answers points that are not that detector's (the mesh's own projection,
+    /// in the same protocol) 29° off on average; until its bias is known for every MediaPipe
+    /// landmarker, a user asks for it by name.
+    pub fn resolve_on_mesh(self) -> Method {
         match self {
-            Method::Auto if complete && !camera && model.detector(scheme).is_some() => {
-                Method::Detector
-            }
             Method::Auto => Method::Fit,
             m => m,
         }

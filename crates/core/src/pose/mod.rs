@@ -352,10 +352,7 @@ fn estimate_mesh(
 ) -> Result<Estimate> {
     check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
-    let complete = landmarks.n_present() == landmarks.len();
-    let method =
-        opts.method
-            .resolve_on_mesh(model, &ms.scheme.name, complete, opts.camera.is_some());
+    let method = opts.method.resolve_on_mesh();
     let spec = method.spec();
     spec.check_camera(opts.camera.as_ref())?;
     // Every method's spread is taken on the model's own points (the mesh landmarks' means),

@@ -36,35 +36,19 @@ async fn mediapipe_faces_in_normalized_coordinates() {
     });
     for pose @ (y, p, r) in [(0.0, 0.0, 0.0), (35.0, -10.0, 12.0), (-55.0, 20.0, -8.0)] {
         let lm = face478_normalized(y, p, r, size);
-        // The rigid fit of the mesh is exact on the mesh's own projection; auto, the detector
-        // regression learned where MediaPipe puts its points, is up to 23° off on these points,
-        // which no detector gives (tests/service/http.rs says more).
-        for (method, tol) in [("fit", 0.01), ("", 30.0)] {
-            let mut face = proto_face(&lm, "", method, "mp");
-            face.image_size = image_size;
-            let pose_msg = c
-                .estimate(request(face, ""))
-                .await
-                .unwrap()
-                .into_inner()
-                .pose
-                .unwrap();
-            if method.is_empty() {
-                let err = geodesic_deg(&rotation_flat(&pose_msg.rotation), &rotation(y, p, r));
-                assert!(err < tol, "{err}° for {pose:?}");
-            } else {
-                assert_pose(&pose_msg, pose, tol);
-            }
-            assert_eq!(pose_msg.scheme, "mediapipe478");
-            let want = if method.is_empty() {
-                "detector"
-            } else {
-                method
-            };
-            assert_eq!(pose_msg.method, want);
-            assert_eq!(pose_msg.visible.len(), 478);
-            assert!(pose_msg.warnings.is_empty());
-        }
+        let mut face = proto_face(&lm, "", "", "mp");
+        face.image_size = image_size;
+        let pose_msg = c
+            .estimate(request(face, ""))
+            .await
+            .unwrap()
+            .into_inner()
+            .pose
+            .unwrap();
+        assert_pose(&pose_msg, pose, 0.01);
+        assert_eq!(pose_msg.scheme, "mediapipe478");
+        assert_eq!(pose_msg.visible.len(), 478);
+        assert!(pose_msg.warnings.is_empty());
     }
     // Bad input: INVALID_ARGUMENT saying what to fix.
     let lm = face478_normalized(10.0, 0.0, 0.0, size);

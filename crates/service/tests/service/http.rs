@@ -206,29 +206,16 @@ async fn mediapipe_faces_in_normalized_coordinates() {
     for &pose in &POSES {
         let (y, p, r) = pose;
         let lm = face478_normalized(y, p, r, size);
-        // The scheme by name, and by the number of points. The rigid fit of the mesh is exact
-        // on the mesh's own projection. Auto is the detector regression, learned where
-        // MediaPipe puts its points, not where the mesh projects: on these points, which no
-        // detector gives, it is up to 23° off (at yaw -55°, pitch 20°: it reads the mesh's
-        // un-compressed pitch as more pitch), which docs/API.md says.
+        // The scheme by name, and by the number of points.
         for scheme in [json!("mediapipe478"), Value::Null] {
-            for method in [json!("fit"), Value::Null] {
-                let body = json!({"landmarks": lm, "image_size": size, "scheme": scheme,
-                                  "method": method});
-                let (status, v) = post(&c, &url, &body).await;
-                assert_eq!(status, StatusCode::OK, "{v}");
-                if method.is_null() {
-                    assert_eq!(v["method"], "detector");
-                    let err = geodesic_deg(&rotation_json(&v["rotation"]), &rotation(y, p, r));
-                    assert!(err < 30.0, "{err}° for {pose:?}: {v}");
-                } else {
-                    assert_pose(&v, pose, 0.01);
-                    assert_eq!(v["method"], "fit");
-                }
-                assert_eq!(v["scheme"], "mediapipe478");
-                assert_eq!(v["visible"].as_array().unwrap().len(), 478);
-                assert_eq!(v["warnings"], json!([]));
-            }
+            let body = json!({"landmarks": lm, "image_size": size, "scheme": scheme});
+            let (status, v) = post(&c, &url, &body).await;
+            assert_eq!(status, StatusCode::OK, "{v}");
+            assert_pose(&v, pose, 0.01);
+            assert_eq!(v["scheme"], "mediapipe478");
+            assert_eq!(v["method"], "fit");
+            assert_eq!(v["visible"].as_array().unwrap().len(), 478);
+            assert_eq!(v["warnings"], json!([]));
         }
         // The 468-point form.
         let body = json!({"landmarks": lm[..468], "image_size": size});
@@ -239,7 +226,7 @@ async fn mediapipe_faces_in_normalized_coordinates() {
     }
     // The same in a batch, image_size at the batch's level.
     let lm = face478_normalized(30.0, -12.0, 8.0, size);
-    let body = json!({"image_size": size, "faces": [{"landmarks": lm, "id": 1, "method": "fit"}]});
+    let body = json!({"image_size": size, "faces": [{"landmarks": lm, "id": 1}]});
     let (status, v) = post(&c, &server.url("/v1/pose:batch"), &body).await;
     assert_eq!(status, StatusCode::OK, "{v}");
     assert_pose(&v["results"][0], (30.0, -12.0, 8.0), 0.01);
