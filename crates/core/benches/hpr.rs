@@ -1,5 +1,7 @@
 //! HPR speed: one pose of a 68-point shape (the bfm68 mean), the paper's method, and the
-//! spherical-flipping baseline for comparison.
+//! spherical-flipping baseline for comparison; and one pose of MediaPipe's 468-vertex canonical
+//! mesh with its own triangles (what training computes at every view, where the grid of
+//! `PaperHpr` pays).
 
 // A program around the library: clippy.toml's no-I/O rule is the library's.
 #![allow(
@@ -10,8 +12,8 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use facepose_core::geometry::EulerAngles;
-use facepose_core::hpr::{HprScratch, KatzHpr, PaperHpr};
-use facepose_files::data::{data_dir, load_morphable_model};
+use facepose_core::hpr::{HprScratch, KatzHpr, PaperHpr, Triangulation};
+use facepose_files::data::{data_dir, load_canonical_mesh, load_morphable_model};
 use std::hint::black_box;
 
 fn hpr(c: &mut Criterion) {
@@ -35,6 +37,19 @@ fn hpr(c: &mut Criterion) {
             rotated_buf.clear();
             rotated_buf.extend(shape.iter().map(|p| black_box(r) * p));
             hpr.visibility_into(&rotated_buf, &mut scratch, &mut out)
+                .unwrap()
+        })
+    });
+    let mesh = load_canonical_mesh(&data_dir().join("mediapipe/canonical_face_468.json"))
+        .expect("shared data");
+    let tri = Triangulation::new(&mesh.vertices, mesh.triangles.clone()).unwrap();
+    let mesh_hpr = PaperHpr::new(tri);
+    let mesh_rotated: Vec<_> = mesh.vertices.iter().map(|p| r * p).collect();
+    let mut mesh_out = vec![false; mesh.vertices.len()];
+    c.bench_function("hpr/paper/468-vertex mesh/one pose", |b| {
+        b.iter(|| {
+            mesh_hpr
+                .visibility_into(black_box(&mesh_rotated), &mut scratch, &mut mesh_out)
                 .unwrap()
         })
     });
