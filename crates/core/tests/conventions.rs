@@ -17,7 +17,7 @@ use facepose_core::geometry::convention::camera::nearest_rotation;
 use facepose_core::geometry::convention::peers::MEDIAPIPE_CAMERA;
 use facepose_core::geometry::convention::{
     Axes, CameraPose, ConventionAnswer, ConventionRequest, EulerSpec, ImageSize, Matrices,
-    MeshFrame, ObjectFrame, Order, Placement, PoseInput, Refit, Units, answer,
+    MeshFrame, ObjectFrame, Order, Placement, PoseInput, Refit, Units, answer, image_size,
 };
 use facepose_core::geometry::{geodesic_deg, procrustes::Similarity3};
 use facepose_core::model::{PoseModel, default_model};
@@ -275,7 +275,7 @@ fn opencv_rvec_tvec_are_solvepnps() {
             cx: f(&c[2]),
             cy: f(&c[3]),
         };
-        let size = ImageSize::new(f(&face["image_size"][0]), f(&face["image_size"][1])).unwrap();
+        let size = image_size(f(&face["image_size"][0]), f(&face["image_size"][1])).unwrap();
         let px = points(&face["landmarks"], 1.0, 1.0, 68);
         let e = estimate("ibug68", px.clone(), Some(k));
         let p = placement(&e, mean, &px, Some(k));
@@ -368,7 +368,7 @@ fn opencv_on_real_landmarks() {
         .zip(dlib["faces"].as_array().unwrap())
     {
         assert_eq!(face["image"], d["image"]);
-        let size = ImageSize::new(f(&face["image_size"][0]), f(&face["image_size"][1])).unwrap();
+        let size = image_size(f(&face["image_size"][0]), f(&face["image_size"][1])).unwrap();
         let px = points(&d["ibug68"], 1.0, 1.0, 68);
         let e = estimate("ibug68", px.clone(), None);
         let p = placement(&e, mean, &px, None);
@@ -482,7 +482,7 @@ fn mediapipe_matrix_is_mediapipes_on_synthetic_faces() {
     let (mut worst_refit, mut worst_refit_cm) = (0.0f64, 0.0f64);
     for face in doc["synthetic"].as_array().unwrap() {
         let (w, h) = (f(&face["image_size"][0]), f(&face["image_size"][1]));
-        let size = ImageSize::new(w, h).unwrap();
+        let size = image_size(w, h).unwrap();
         let px = points(&face["landmarks"], w, h, 468);
         let truth = mat4(&face["true_matrix"]);
         let theirs = mat4(&face["mediapipe_matrix"]);
@@ -571,7 +571,7 @@ fn mediapipe_matrix_on_real_landmarks() {
         let (w, h) = (f(&face["image_size"][0]), f(&face["image_size"][1]));
         let px = points(&face["landmarks"], w, h, 478);
         let e = estimate("mediapipe478", px.clone(), None);
-        let size = ImageSize::new(w, h).unwrap();
+        let size = image_size(w, h).unwrap();
         let refit = refitter("mediapipe478", px.clone());
         let (m, _) = mediapipe_answer(&e, placement(&e, &ms.points, &px, None), size, Some(&refit));
         let (r, t) = split(&m);

@@ -70,7 +70,7 @@ pub fn conventions_of(
         })
     };
     let size = match conv.image_size {
-        Some(s) => Some(convention::ImageSize::new(s.width, s.height)?),
+        Some(s) => Some(convention::image_size(s.width, s.height)?),
         None => None,
     };
     Ok(convention::answer(

@@ -19,23 +19,15 @@ use crate::estimate::Intrinsics;
 use crate::geometry::moments::Moments;
 use crate::shape::Shape2;
 
-/// The image's size in pixels.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImageSize {
-    /// Width, pixels.
-    pub width: f64,
-    /// Height, pixels.
-    pub height: f64,
-}
+pub use crate::shape::pixels::ImageSize;
 
-impl ImageSize {
-    /// Fails unless both are finite and positive.
-    pub fn new(width: f64, height: f64) -> Result<ImageSize, ConventionError> {
-        if !(width.is_finite() && height.is_finite() && width > 0.0 && height > 0.0) {
-            return Err(ConventionError::BadImageSize { width, height });
-        }
-        Ok(ImageSize { width, height })
+/// The image size `width` x `height` (pixels) a camera is assumed from; fails unless both are
+/// finite and positive.
+pub fn image_size(width: f64, height: f64) -> Result<ImageSize, ConventionError> {
+    if !(width.is_finite() && height.is_finite() && width > 0.0 && height > 0.0) {
+        return Err(ConventionError::BadImageSize { width, height });
     }
+    Ok(ImageSize { width, height })
 }
 
 /// Where the face is, as the estimate knows it.

@@ -7,7 +7,7 @@ use approx::assert_relative_eq;
 use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};
 use proptest::prelude::*;
 
-use super::camera::{CameraOrientation, ImageSize, Placement, assumed_camera};
+use super::camera::{CameraOrientation, Placement, assumed_camera, image_size};
 use super::euler::{Axes, EulerSpec, Kind, Matrices, Order, Units};
 use super::peers::{ObjectFrame, OpenCvAnswer, rodrigues};
 use super::request::{
@@ -371,7 +371,7 @@ fn opencv_and_mediapipe_say_what_they_lack() {
     let opencv = [ConventionRequest::OpenCv(ObjectFrame::OpenCv)];
     let m = answer(&opencv, &input).unwrap_err().to_string();
     assert!(m.contains("image_size"), "{m}");
-    let size = ImageSize::new(640.0, 480.0).unwrap();
+    let size = image_size(640.0, 480.0).unwrap();
     let out = answer(
         &opencv,
         &PoseInput {
@@ -391,7 +391,7 @@ fn opencv_and_mediapipe_say_what_they_lack() {
     )
     .unwrap_err();
     assert!(!m.is_invalid_argument());
-    assert!(ImageSize::new(0.0, 480.0).is_err());
+    assert!(image_size(0.0, 480.0).is_err());
     let bad = Placement::Perspective {
         translation: Vector3::new(0.0, 0.0, -500.0),
         camera: Intrinsics {
@@ -606,7 +606,7 @@ fn worked_example_of_the_docs() {
             translation: t,
             camera: k,
         }),
-        image_size: Some(ImageSize::new(640.0, 480.0).unwrap()),
+        image_size: Some(image_size(640.0, 480.0).unwrap()),
         orientation: None,
         mesh: Some(&frame),
         refit: None,

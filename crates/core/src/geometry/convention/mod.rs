@@ -32,7 +32,7 @@ pub mod euler;
 pub mod peers;
 pub mod request;
 
-pub use camera::{CameraOrientation, CameraPose, ImageSize, Placement, assumed_camera};
+pub use camera::{CameraOrientation, CameraPose, ImageSize, Placement, assumed_camera, image_size};
 pub use euler::{Axes, EulerSpec, Kind, Matrices, Order, Units};
 pub use peers::{MEDIAPIPE_CAMERA, MediaPipeAnswer, MeshFrame, ObjectFrame, OpenCvAnswer};
 pub use request::{

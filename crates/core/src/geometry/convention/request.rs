@@ -11,6 +11,7 @@ use thiserror::Error;
 
 use super::camera::{
     CameraOrientation, CameraPose, ImageSize, Placement, assumed_camera, check_intrinsics,
+    image_size,
 };
 use super::euler::{Axes, EulerSpec, Kind, Matrices, Order, PRESETS, Units};
 use super::peers::{
@@ -606,7 +607,7 @@ pub fn answer(
                 let size = match (input.image_size, placement) {
                     (Some(s), _) => s,
                     (None, Placement::Perspective { camera, .. }) => {
-                        let s = ImageSize::new(2.0 * camera.cx, 2.0 * camera.cy)?;
+                        let s = image_size(2.0 * camera.cx, 2.0 * camera.cy)?;
                         out.warnings
                             .push(ConventionWarning::ImageSizeFromPrincipalPoint {
                                 width: s.width,
