@@ -398,6 +398,30 @@ fn row(
     }
 }
 
+/// facepose on MediaPipe's 478 points against MediaPipe's own facial transformation matrix
+/// from the same points (what the `mediapipe` convention would swap in), on geometry `bfm`
+/// (absolute truth), renders where both answered: how far apart the two rotations are, and
+/// how far each is from the truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct MatrixAgreementRow {
+    /// facepose's estimation method.
+    pub method: String,
+    /// `train`, `test` or `all`.
+    pub split: String,
+    /// Renders where both answered.
+    pub renders: usize,
+    /// Median angle between facepose's rotation and MediaPipe's, degrees.
+    pub median_angle: f64,
+    /// Mean of that angle, degrees.
+    pub mean_angle: f64,
+    /// Share of renders where they are within 1 degree.
+    pub within_1deg: f64,
+    /// facepose's mean geodesic error from the truth, degrees.
+    pub error_facepose: f64,
+    /// MediaPipe's mean geodesic error from the truth, degrees.
+    pub error_mediapipe: f64,
+}
+
 /// MediaPipe against dlib on geometry `bfm` (absolute truth), renders where both answered.
 #[derive(Debug, Clone, Serialize)]
 pub struct DisagreementRow {
@@ -469,6 +493,8 @@ pub struct RenderedReport {
     pub rows: Vec<RenderedRow>,
     /// MediaPipe against dlib.
     pub disagreement: Vec<DisagreementRow>,
+    /// facepose against MediaPipe's own matrix.
+    pub matrix_agreement: Vec<MatrixAgreementRow>,
     /// The trajectories, per filter.
     pub trajectories: Vec<TrajectoryRow>,
 }
@@ -622,6 +648,7 @@ pub fn rendered_protocol(
             });
         }
     }
+    let matrix_agreement = matrix_agreement(&statics, &answers, methods);
     let trajectories = trajectory_rows(model, records, frame.as_ref());
     RenderedReport {
         records: records.len(),
@@ -630,8 +657,70 @@ pub fn rendered_protocol(
         methods: methods.iter().map(|m| m.to_string()).collect(),
         rows,
         disagreement,
+        matrix_agreement,
         trajectories,
     }
+}
+
+/// The [`MatrixAgreementRow`]s: per method answering MediaPipe's points, per split.
+fn matrix_agreement(
+    statics: &[&RenderedRecord],
+    answers: &[(Detector, String, Vec<Option<Answer>>)],
+    methods: &[Method],
+) -> Vec<MatrixAgreementRow> {
+    let find = |label: &str| {
+        answers
+            .iter()
+            .find(|(det, meth, _)| *det == Detector::Mediapipe478 && meth == label)
+            .map(|x| &x.2)
+    };
+    let Some(peer) = find(MEDIAPIPE_MATRIX) else {
+        return Vec::new();
+    };
+    let mut rows = Vec::new();
+    for &m in methods {
+        let Some(ours) = find(&m.to_string()) else {
+            continue;
+        };
+        for split in ["train", "test", "all"] {
+            // (angle between them, facepose's error, MediaPipe's error)
+            let mut v: Vec<(f64, f64, f64)> = statics
+                .iter()
+                .zip(ours.iter().zip(peer))
+                .filter(|(r, _)| r.geometry == "bfm" && (split == "all" || r.split == split))
+                .filter_map(|(r, (a, b))| {
+                    let (a, b) = (a.as_ref()?, b.as_ref()?);
+                    let truth = truth_rotation(r);
+                    Some((
+                        geodesic_deg(&a.rotation, &b.rotation),
+                        geodesic_deg(&a.rotation, &truth),
+                        geodesic_deg(&b.rotation, &truth),
+                    ))
+                })
+                .collect();
+            if v.is_empty() {
+                continue;
+            }
+            v.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let n = v.len();
+            let median = if n % 2 == 1 {
+                v[n / 2].0
+            } else {
+                (v[n / 2 - 1].0 + v[n / 2].0) / 2.0
+            };
+            rows.push(MatrixAgreementRow {
+                method: m.to_string(),
+                split: split.into(),
+                renders: n,
+                median_angle: median,
+                mean_angle: mean(v.iter().map(|x| x.0)),
+                within_1deg: v.iter().filter(|x| x.0 <= 1.0).count() as f64 / n as f64,
+                error_facepose: mean(v.iter().map(|x| x.1)),
+                error_mediapipe: mean(v.iter().map(|x| x.2)),
+            });
+        }
+    }
+    rows
 }
 
 /// A stream's track: the filter's output per frame (`None`: not emitted), as
@@ -956,6 +1045,28 @@ pub fn disagreement_markdown(report: &RenderedReport) -> String {
     out
 }
 
+/// The facepose-against-MediaPipe's-matrix table.
+pub fn matrix_agreement_markdown(report: &RenderedReport) -> String {
+    let mut out = String::from(
+        "| method | split | renders | median angle between them | mean | within 1° | facepose's error | MediaPipe's error |\n\
+         |---|---|---|---|---|---|---|---|\n",
+    );
+    for a in &report.matrix_agreement {
+        out.push_str(&format!(
+            "| {} | {} | {} | **{}** | {} | {:.0}% | {} | {} |\n",
+            a.method,
+            a.split,
+            a.renders,
+            f2(a.median_angle),
+            f2(a.mean_angle),
+            100.0 * a.within_1deg,
+            f2(a.error_facepose),
+            f2(a.error_mediapipe),
+        ));
+    }
+    out
+}
+
 /// The trajectories: pooled rows (one per split, input and filter), then per trajectory.
 pub fn trajectories_markdown(report: &RenderedReport, pooled: bool) -> String {
     let mut out = String::from(
@@ -1003,6 +1114,10 @@ pub fn rendered_markdown(report: &RenderedReport, split: &str) -> String {
          ### Split `{other}`: both geometries, a constant rotation per identity removed\n\n{}\n\
          ### MediaPipe against dlib (geometry `bfm`, absolute)\n\n\
          Renders where both MediaPipe and dlib answered; differences of the estimated angles, degrees.\n\n{}\n\
+         ### facepose against MediaPipe's own matrix (geometry `bfm`, absolute)\n\n\
+         facepose on MediaPipe's 478 points against MediaPipe's facial transformation matrix from \
+         the same points (the rotation the `mediapipe` convention would replace): the angle between \
+         the two rotations, and each one's geodesic error from the truth, degrees.\n\n{}\n\
          ### Trajectories (`auto`), pooled\n\n{}\n\
          ### Trajectories, each\n\n{}",
         rows_markdown(report, split, "both", true),
@@ -1011,6 +1126,7 @@ pub fn rendered_markdown(report: &RenderedReport, split: &str) -> String {
         rows_markdown(report, split, "mediapipe", true),
         rows_markdown(report, other, "both", true),
         disagreement_markdown(report),
+        matrix_agreement_markdown(report),
         trajectories_markdown(report, true),
         trajectories_markdown(report, false),
     )
@@ -1093,6 +1209,24 @@ mod tests {
             assert!(b.mae_mean.is_finite());
         }
         assert!(report.rows.iter().any(|r| r.method == MEDIAPIPE_MATRIX));
+        // facepose against MediaPipe's matrix: a row per method; the angle between
+        // them bounds the difference of their errors (the geodesic angle is a metric).
+        for m in ["auto", "fit"] {
+            assert!(
+                report
+                    .matrix_agreement
+                    .iter()
+                    .any(|a| a.method == m && a.split == "all"),
+                "{m}"
+            );
+        }
+        for a in &report.matrix_agreement {
+            assert!(a.renders > 0 && a.median_angle.is_finite(), "{a:?}");
+            assert!(
+                (a.error_facepose - a.error_mediapipe).abs() <= a.mean_angle + 1e-9,
+                "{a:?}"
+            );
+        }
         // Trajectories: one per input and filter, and the pooled ones.
         let traj: Vec<&TrajectoryRow> = report
             .trajectories
