@@ -29,7 +29,7 @@ use super::error::HttpError;
 use super::wire::{BatchFace, BatchRequest, PoseRequest};
 use facepose_app::error::ServiceError;
 use facepose_core::shape::MAX_POINTS;
-use facepose_records::{Landmarks, read_number};
+use facepose_records::{Landmarks, read_number, skip_ws};
 
 /// The most bytes a string (or a number) of a pose body may have: far above any name (64
 /// characters) or id a client needs, far below what would cost memory.
@@ -774,6 +774,38 @@ impl PoseBody {
             self.token = 0;
             match b {
                 b'[' => {
+                    if self.lm_build
+                        && depth == 0
+                        && matches!(self.lm, Lm::Open | Lm::Next)
+                        && let Some((x, y, end)) = whole_point(chunk, i)
+                    {
+                        // The usual landmark, whole in the chunk: nothing in it a limit
+                        // counts (its numbers are short), read in one go.
+                        self.points.push(Some([x, y]));
+                        self.lm = Lm::After;
+                        i = end;
+                        // And the ones after it, counted as the checks count them.
+                        loop {
+                            let comma = skip_ws(chunk, i);
+                            if chunk.get(comma) != Some(&b',') {
+                                break;
+                            }
+                            let start = skip_ws(chunk, comma + 1);
+                            let Some(Open::Array { len, .. }) = self.stack.last_mut() else {
+                                break;
+                            };
+                            if *len >= MAX_POINTS || chunk.get(start) != Some(&b'[') {
+                                break;
+                            }
+                            let Some((x, y, end)) = whole_point(chunk, start) else {
+                                break;
+                            };
+                            *len += 1;
+                            self.points.push(Some([x, y]));
+                            i = end;
+                        }
+                        continue;
+                    }
                     depth += 1;
                     if self.lm_build {
                         if depth == 1 && matches!(self.lm, Lm::Open | Lm::Next) {
@@ -940,6 +972,24 @@ impl PoseBody {
             _ => {}
         }
     }
+}
+
+/// The landmark `[x, y]` that starts at offset `i` of `chunk` (its `[`), if it is whole there
+/// with numbers of at most [`MAX_TOKEN`] bytes: its coordinates and the offset past its `]`.
+#[inline]
+fn whole_point(chunk: &[u8], i: usize) -> Option<(f64, f64, usize)> {
+    let number = |j: usize| {
+        let (v, end) = read_number(chunk, j)?;
+        (v.is_finite() && end - j <= MAX_TOKEN).then_some((v, end))
+    };
+    let (x, end) = number(skip_ws(chunk, i + 1))?;
+    let j = skip_ws(chunk, end);
+    if chunk.get(j) != Some(&b',') {
+        return None;
+    }
+    let (y, end) = number(skip_ws(chunk, j + 1))?;
+    let j = skip_ws(chunk, end);
+    (chunk.get(j) == Some(&b']')).then_some((x, y, j + 1))
 }
 
 /// JSON's white space (`is_ascii_whitespace` has form feed too).
