@@ -121,6 +121,16 @@ pub fn parse_landmarks_at(
     Ok((Landmarks(points), c.i + 1))
 }
 
+/// Reads the JSON number that starts at byte `start` of `b` (the landmark parser's, correctly
+/// rounded): its value (infinite when out of the range of `f64`) and the offset just past it, or
+/// `None` if no JSON number starts there. It stops at the first byte that cannot continue the
+/// number: what follows is the caller's to check. For readers that parse landmarks as a body
+/// arrives (the service's HTTP pose bodies).
+#[inline]
+pub fn read_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
+    number::read(b, start)
+}
+
 /// The offset of the first byte at or after `i` that is not JSON whitespace.
 #[inline]
 pub fn skip_ws(b: &[u8], mut i: usize) -> usize {

@@ -32,8 +32,8 @@ use facepose_files::data::{data_dir, load_aflw};
 use facepose_service::grpc::convert::pose_message;
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::grpc::landmark_messages;
-use facepose_service::http::body_guard::{BodyGuard, BodyKind};
-use facepose_service::http::pose::parse_pose_request;
+use facepose_service::http::pose::{parse_pose_request, pose_request};
+use facepose_service::http::pose_body::{BodyKind, PoseBody};
 use facepose_service::proto;
 use nalgebra::Vector2;
 use prost::Message;
@@ -53,7 +53,7 @@ const ENTRIES: [&str; 19] = [
     "estimate-face-fit",
     "grpc-decode-landmarks",
     "grpc-decode-xy",
-    "guard-pose-body",
+    "parse-pose-body-chunked",
     "guard-grpc-landmarks",
     "grpc-estimate-xy",
     "estimate-auto-dev-fitted",
@@ -221,10 +221,14 @@ fn main() {
             "grpc-decode-xy" => drop(black_box(
                 proto::EstimateRequest::decode(black_box(packed.as_slice())).unwrap(),
             )),
-            // The checks of a body as it arrives, on every byte (as for a body over 16 KiB).
-            "guard-pose-body" => {
-                let mut g = BodyGuard::new(BodyKind::Pose);
-                let _ = black_box(g.feed(black_box(body.as_bytes())));
+            // The body checked and read as it arrives, in chunks of 1 KiB.
+            "parse-pose-body-chunked" => {
+                let bytes = black_box(body.as_bytes());
+                let mut r = PoseBody::new(BodyKind::Pose);
+                for chunk in bytes.chunks(1024) {
+                    r.feed(chunk).unwrap();
+                }
+                drop(black_box(pose_request(r, bytes).unwrap()));
             }
             "guard-grpc-landmarks" => {
                 let mut g = FrameGuard::new(Rpc::Estimate, 1000).scanning_from(0);

@@ -11,9 +11,8 @@ use http_body_util::BodyExt;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
-use super::body_guard::{BodyGuard, Breach, MAX_TOKEN};
 use super::error::HttpError;
-use facepose_core::shape::MAX_POINTS;
+use super::pose_body::PoseBody;
 
 /// Refuses (415) a request whose `Content-Type` is not JSON.
 pub fn require_json(headers: &HeaderMap) -> Result<(), HttpError> {
@@ -43,8 +42,9 @@ pub fn require_json(headers: &HeaderMap) -> Result<(), HttpError> {
     }
 }
 
-/// Bodies up to this long are not guarded: whatever they hold costs little (the worst, empty
-/// faces, under 2 MB parsed), and the guard's pass would add a third to a pose's parsing.
+/// A pose body's breach of its limits is answered from this many bytes on: a shorter body's
+/// errors come from the parser, which names them precisely (the reader checks every byte, but
+/// whatever a body this short holds costs little: the worst, empty faces, under 2 MB parsed).
 const GUARD_FROM: usize = 16 * 1024;
 
 /// How much of an over-limit body is read and thrown away before the 413 goes out. Most
@@ -72,13 +72,14 @@ pub async fn read_body_limited(
     read_chunks(headers, body, limit, flag, hint, None).await
 }
 
-/// [`read_body`] for a pose body, checked by `guard` as it arrives: a body that crosses one of
-/// its limits is refused there (drained within bounds, as an over-limit body), not read whole.
-pub async fn read_guarded_body(
+/// [`read_body`] for a pose body, read by `reader` as it arrives (checked and parsed in one
+/// pass): a body that crosses one of its limits is refused there (drained within bounds, as an
+/// over-limit body), not read whole.
+pub async fn read_pose_body(
     headers: &HeaderMap,
     body: Body,
     limit: usize,
-    guard: &mut BodyGuard,
+    reader: &mut PoseBody,
 ) -> Result<Bytes, HttpError> {
     read_chunks(
         headers,
@@ -86,7 +87,7 @@ pub async fn read_guarded_body(
         limit,
         "--max-body",
         "split the batch",
-        Some(guard),
+        Some(reader),
     )
     .await
 }
@@ -97,7 +98,7 @@ async fn read_chunks(
     limit: usize,
     flag: &'static str,
     hint: &'static str,
-    mut guard: Option<&mut BodyGuard>,
+    mut reader: Option<&mut PoseBody>,
 ) -> Result<Bytes, HttpError> {
     let too_large = |size: Option<u64>| {
         HttpError::Service(ServiceError::TooLarge {
@@ -118,7 +119,6 @@ async fn read_chunks(
     let mut first: Option<Bytes> = None;
     let mut rest: Vec<u8> = Vec::new();
     let mut body = body;
-    let mut guarding = false;
     while let Some(frame) = body.frame().await {
         let Ok(data) = frame.map_err(unreadable)?.into_data() else {
             continue; // trailers
@@ -134,24 +134,14 @@ async fn read_chunks(
             drain(body, seen as u64).await;
             return Err(too_large(None));
         }
-        if let Some(g) = guard.as_deref_mut()
+        if let Some(r) = reader.as_deref_mut()
+            && let Err(breach) = r.feed(&data)
             && seen > GUARD_FROM
-            && let Err(breach) = {
-                // The guard starts with the body's bytes so far, once it is this long.
-                let caught_up = match (guarding, rest.is_empty(), &first) {
-                    (true, ..) => Ok(()),
-                    (false, true, Some(f)) => g.feed(f),
-                    (false, true, None) => Ok(()),
-                    (false, false, _) => g.feed(&rest),
-                };
-                guarding = true;
-                caught_up.and_then(|()| g.feed(&data))
-            }
         {
             // Thrown away unparsed, up to the body limit (what a client sends before it
             // reads the answer), so that it reads the answer rather than a reset.
             drain_up_to(body, seen as u64, DRAIN_LIMIT.max(limit as u64)).await;
-            return Err(breach_error(breach, g));
+            return Err(r.breach_error(breach));
         }
         match &first {
             None => first = Some(data),
@@ -192,29 +182,6 @@ fn declared_length(headers: &HeaderMap) -> Option<u64> {
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok())
-}
-
-/// What a body that crossed a guard's limit gets: 413 for too many faces, 422 for the rest.
-fn breach_error(breach: Breach, guard: &BodyGuard) -> HttpError {
-    match breach {
-        Breach::Faces => ServiceError::BatchOverLimit {
-            at_least: guard.faces(),
-            limit: guard.max_faces().unwrap_or_default(),
-        }
-        .into(),
-        Breach::Points { face } => HttpError::invalid(format!(
-            "{}landmarks: more than {MAX_POINTS} landmarks, the most a scheme may have",
-            face.map_or(String::new(), |i| format!("faces[{i}].")),
-        )),
-        Breach::NotALandmark { face } => HttpError::invalid(format!(
-            "{}landmarks: a landmark is [x, y] (two numbers) or null",
-            face.map_or(String::new(), |i| format!("faces[{i}].")),
-        )),
-        Breach::Token => HttpError::invalid(format!(
-            "a string or number of more than {} KiB: names have at most 64 characters",
-            MAX_TOKEN / 1024
-        )),
-    }
 }
 
 /// Reads and discards the rest of a body, up to [`DRAIN_LIMIT`] bytes in all (counting `seen`)

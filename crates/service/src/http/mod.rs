@@ -10,11 +10,11 @@
 //! - [`ops`]: `/healthz`, `/readyz`, `/metrics`, `/openapi.json`.
 //! - [`demo`]: the demo page at `/demo` (`--demo`), outside the document: a page, not an
 //!   operation.
-//! - [`body`], [`request_json`]: reading request bodies; [`middleware`]: limits, request ids,
+//! - [`body`], [`pose_body`]: reading request bodies (a pose body checked and parsed in one
+//!   pass as it arrives); [`middleware`]: limits, request ids,
 //!   metrics and logs; [`cors`]: the answers to browsers of other origins (`--cors-origins`).
 
 pub mod body;
-pub mod body_guard;
 pub mod conventions;
 pub mod cors;
 pub mod demo;
@@ -24,7 +24,7 @@ pub mod models;
 pub mod ops;
 pub mod path;
 pub mod pose;
-pub mod request_json;
+pub mod pose_body;
 pub mod retrain;
 pub mod stream;
 pub mod wire;

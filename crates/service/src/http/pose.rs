@@ -1,6 +1,6 @@
 //! The pose routes: `POST /v1/pose` (one face) and `POST /v1/pose:batch` (many, each with its
-//! own outcome). The body is read in one pass when it has the usual shape
-//! ([`super::request_json`]), else by serde with its precise errors.
+//! own outcome). The body is checked and read in one pass as it arrives when it has the usual
+//! shape ([`super::pose_body`]), else by serde with its precise errors.
 
 use std::sync::Arc;
 
@@ -18,14 +18,13 @@ use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::shape::pixels::check_coordinates;
 
 use super::body::{
-    ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_guarded_body, require_json,
-    to_json, to_json_sized,
+    ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_pose_body, require_json, to_json,
+    to_json_sized,
 };
-use super::body_guard::{BodyGuard, BodyKind};
 use super::conventions::{Conventions, Orientation};
 use super::error::{ErrorBody, HttpError};
 use super::middleware::Deadline;
-use super::request_json::{count_batch_faces, read_batch_request, read_pose_request};
+use super::pose_body::{BodyKind, PoseBody, count_batch_faces};
 use super::wire::{
     BatchError, BatchFace, BatchPose, BatchRequest, BatchResponse, BatchResult, Camera,
     PoseRequest, PoseResponse, image_size,
@@ -101,17 +100,18 @@ pub(super) fn batch_face_spec<'a>(f: &'a BatchFace, d: &'a BatchDefaults) -> Fac
     }
 }
 
-/// Parses a `POST /v1/pose` body: in one pass when it has the usual shape
-/// ([`read_pose_request`]), else with serde and its precise errors ([`parse_json`]).
-pub fn parse_pose_request(bytes: &[u8]) -> Result<PoseRequest, HttpError> {
-    read_pose_request(bytes).map_or_else(|| parse_json(bytes), Ok)
+/// A `POST /v1/pose` body that `reader` has read whole: the request it built when the body has
+/// the usual shape, else serde's reading of `bytes` with its precise errors ([`parse_json`]).
+pub fn pose_request(reader: PoseBody, bytes: &[u8]) -> Result<PoseRequest, HttpError> {
+    reader.read_pose().map_or_else(|| parse_json(bytes), Ok)
 }
 
-/// [`parse_pose_request`] for `POST /v1/pose:batch`, with at most `max_batch` faces: the limit
+/// [`pose_request`] for `POST /v1/pose:batch`, with at most the reader's `max_faces`: the limit
 /// is checked before the faces are built (an empty face is 17 bytes of JSON and about 150 in
-/// memory), by the one-pass reader as it goes or by counting them in place before serde.
-pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchRequest, HttpError> {
-    if let Some(req) = read_batch_request(bytes, max_batch) {
+/// memory), by the reader as it goes or by counting them in place before serde.
+pub fn batch_request(reader: PoseBody, bytes: &[u8]) -> Result<BatchRequest, HttpError> {
+    let max_batch = reader.max_faces().unwrap_or(usize::MAX);
+    if let Some(req) = reader.read_batch() {
         return Ok(req);
     }
     if bytes.len() >= INLINE_BYTES {
@@ -125,6 +125,22 @@ pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchReques
         }
     }
     parse_json(bytes)
+}
+
+/// Parses a whole `POST /v1/pose` body ([`pose_request`] after reading it in one chunk).
+pub fn parse_pose_request(bytes: &[u8]) -> Result<PoseRequest, HttpError> {
+    let mut reader = PoseBody::new(BodyKind::Pose);
+    let _ = reader.feed(bytes);
+    pose_request(reader, bytes)
+}
+
+/// Parses a whole `POST /v1/pose:batch` body of at most `max_batch` faces ([`batch_request`]).
+pub fn parse_batch_request(bytes: &[u8], max_batch: usize) -> Result<BatchRequest, HttpError> {
+    let mut reader = PoseBody::new(BodyKind::Batch {
+        max_faces: max_batch,
+    });
+    let _ = reader.feed(bytes);
+    batch_request(reader, bytes)
 }
 
 /// Refuses (422) a batch with a value its schema rules out, at the batch's level or a face's:
@@ -209,9 +225,10 @@ pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response,
     // The request whole rather than a `HeaderMap` extractor, which would copy the headers.
     let (parts, body) = req.into_parts();
     require_json(&parts.headers)?;
-    let mut guard = BodyGuard::new(BodyKind::Pose);
-    let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
-    let req = parse_pose_request(&bytes)?;
+    let mut reader = PoseBody::new(BodyKind::Pose);
+    let bytes = read_pose_body(&parts.headers, body, app.limits.max_body, &mut reader).await?;
+    let req = pose_request(reader, &bytes)?;
+    drop(bytes);
     let answer = app.estimate(Transport::Http, req.model.as_deref(), &req)?;
     Ok(json_bytes(to_json(&PoseResponse {
         pose: answer.pose.record,
@@ -244,14 +261,18 @@ pub async fn pose_batch(
 ) -> Result<Response, HttpError> {
     let (parts, body) = req.into_parts();
     require_json(&parts.headers)?;
-    let mut guard = BodyGuard::new(BodyKind::Batch {
+    let mut reader = PoseBody::new(BodyKind::Batch {
         max_faces: app.limits.max_batch,
     });
-    let bytes = read_guarded_body(&parts.headers, body, app.limits.max_body, &mut guard).await?;
+    let bytes = read_pose_body(&parts.headers, body, app.limits.max_body, &mut reader).await?;
     let size = BatchSize::Bytes(bytes.len());
+    // Read as it arrived, or (a surprise) parsed by serde inside the use case, off the async
+    // workers when it is long.
     let body = app
         .estimate_batch(Transport::Http, size, deadline.0, move |run| {
-            answer_batch(bytes, run)
+            let req = batch_request(reader, &bytes)?;
+            drop(bytes);
+            answer_batch_request(req, run)
         })
         .await?;
     Ok(json_bytes(body))
@@ -263,6 +284,11 @@ pub async fn pose_batch(
 pub fn answer_batch(bytes: Bytes, run: &mut BatchRun) -> Result<Vec<u8>, HttpError> {
     let req = parse_batch_request(&bytes, run.max_faces())?;
     drop(bytes);
+    answer_batch_request(req, run)
+}
+
+/// [`answer_batch`] on a request already read.
+fn answer_batch_request(req: BatchRequest, run: &mut BatchRun) -> Result<Vec<u8>, HttpError> {
     run.check_size(req.faces.len())?;
     check_conformance(&req)?;
     let model = run.model(req.model.as_deref())?;
