@@ -12,6 +12,7 @@
 # listed, its socket is refused (403).
 #
 #   scripts/browser-test.sh [--screenshot docs/demo.png]
+#   scripts/browser-test.sh --setup-only   # install what it needs, run nothing (CI, early)
 #
 # Installs what it needs: Debian's chromium (apt-get, as root) when /usr/bin/chromium is
 # missing, and a pinned Playwright in the venv target/browser-test-venv (Playwright's own
@@ -27,10 +28,12 @@ PILLOW_VERSION=13.0.0
 VENV=target/browser-test-venv
 CHROMIUM=${CHROMIUM:-/usr/bin/chromium}
 SCREENSHOT=""
+SETUP_ONLY=""
 case "${1:-}" in
 --screenshot) SCREENSHOT=${2:?--screenshot FILE} ;;
+--setup-only) SETUP_ONLY=1 ;;
 "") ;;
-*) echo "usage: $0 [--screenshot FILE]" >&2; exit 2 ;;
+*) echo "usage: $0 [--screenshot FILE | --setup-only]" >&2; exit 2 ;;
 esac
 
 not_run() {
@@ -57,6 +60,7 @@ fi
 want=("playwright==$PLAYWRIGHT_VERSION")
 [ -n "$SCREENSHOT" ] && want+=("pillow==$PILLOW_VERSION")
 venv_ensure "$VENV" "${want[@]}" || not_run "the venv or pip install ${want[*]} failed"
+[ -n "$SETUP_ONLY" ] && { echo "browser tests: Chromium and $VENV ready"; exit 0; }
 
 # $FACEPOSE_BIN, else the release build.
 release_build
