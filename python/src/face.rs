@@ -165,7 +165,7 @@ pub fn estimate_face<'m>(
     )?;
     // The service's record, for its finite check over the conventions' numbers too.
     let mut record = PoseRecord::from(&estimate);
-    record.conventions = Some(ConventionsRecord::from(&c));
+    record.conventions = Some(Box::new(ConventionsRecord::from(&c)));
     if !record.is_finite() {
         return Err(not_finite());
     }

@@ -240,7 +240,7 @@ pub fn run(a: EstimateArgs) -> Result<(), CliError> {
                     record
                         .warnings
                         .extend(c.warnings.iter().map(ToString::to_string));
-                    record.conventions = Some(ConventionsRecord::from(c));
+                    record.conventions = Some(Box::new(ConventionsRecord::from(c)));
                 }
                 let mut v = serde_json::to_value(record)?;
                 if let Some(o) = v.as_object_mut() {

@@ -116,7 +116,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         record
             .warnings
             .extend(c.warnings.iter().map(ToString::to_string));
-        record.conventions = Some(ConventionsRecord::from(c));
+        record.conventions = Some(Box::new(ConventionsRecord::from(c)));
     }
     if !record.is_finite() {
         return Err(ServiceError::invalid(

@@ -291,9 +291,10 @@ pub struct PoseRecord {
     /// How far to trust each angle (absent when the model has no calibration).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncertainty: Option<UncertaintyRecord>,
-    /// The pose in the conventions the request named (absent when it named none).
+    /// The pose in the conventions the request named (absent when it named none). Boxed: the
+    /// answers are about 600 bytes, which a pose that names none would otherwise carry and move.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub conventions: Option<ConventionsRecord>,
+    pub conventions: Option<Box<ConventionsRecord>>,
 }
 
 /// How far to trust one angle, degrees.
@@ -351,7 +352,7 @@ impl PoseRecord {
             .chain(self.translation.iter().flatten())
             .copied()
             .chain(self.uncertainty.iter().flat_map(UncertaintyRecord::numbers))
-            .chain(self.conventions.iter().flat_map(ConventionsRecord::numbers))
+            .chain(self.conventions.iter().flat_map(|c| c.numbers()))
             .all(|v| v.is_finite())
     }
 }

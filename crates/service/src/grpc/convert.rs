@@ -289,7 +289,10 @@ pub fn pose_message(p: &FacePose, smoothing: Smoothed) -> proto::Pose {
             }
         }),
         gated: smoothing.gated,
-        conventions: r.conventions.as_ref().map(conventions_message),
+        conventions: r
+            .conventions
+            .as_deref()
+            .map(|c| Box::new(conventions_message(c))),
     }
 }
 

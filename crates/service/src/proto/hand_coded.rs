@@ -93,8 +93,9 @@ pub struct Pose {
     pub uncertainty: Option<Uncertainty>,
     /// In EstimateStream with the Kalman filter: the frame was left out as an outlier.
     pub gated: bool,
-    /// The answers in the conventions the face asked for.
-    pub conventions: Option<Conventions>,
+    /// The answers in the conventions the face asked for. Boxed: they are about 350 bytes,
+    /// which a pose that asks for none would otherwise carry and move.
+    pub conventions: Option<Box<Conventions>>,
 }
 
 /// Names the field of a decode error, as prost's derive does.
@@ -278,7 +279,7 @@ impl Message for Pose {
             }
             14 => message::merge(
                 wire_type,
-                self.conventions.get_or_insert_with(Conventions::default),
+                self.conventions.get_or_insert_with(Box::default).as_mut(),
                 buf,
                 ctx,
             )
@@ -686,7 +687,7 @@ mod tests {
                     warnings: warnings.clone(),
                     uncertainty: uncertainty.as_deref().map(ours),
                     gated,
-                    conventions: answers.as_ref().map(same),
+                    conventions: answers.as_ref().map(|a| Box::new(same(a))),
                 },
                 reference::Pose {
                     yaw, pitch, roll, rotation, visible, residual, method, scheme,
