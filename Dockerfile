@@ -39,8 +39,10 @@ COPY crates/app/Cargo.toml crates/app/
 COPY crates/service/Cargo.toml crates/service/
 COPY crates/testkit/Cargo.toml crates/testkit/
 COPY crates/protogen/Cargo.toml crates/protogen/
-RUN mkdir -p src crates/core/benches crates/service/benches crates/service/examples \
+COPY python/Cargo.toml python/
+RUN mkdir -p src crates/core/benches crates/service/benches crates/service/examples python/src \
  && for c in core eval files records app service testkit; do mkdir -p crates/$c/src && touch crates/$c/src/lib.rs; done \
+ && touch python/src/lib.rs \
  && mkdir -p crates/protogen/src && echo 'fn main() {}' > crates/protogen/src/main.rs \
  && echo 'fn main() {}' > src/main.rs \
  && for b in hpr estimate train real_faces; do echo 'fn main() {}' > crates/core/benches/$b.rs; done \

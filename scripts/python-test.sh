@@ -1,17 +1,23 @@
 #!/usr/bin/env bash
-# The Python package as a user gets it, in a venv of its own: `pip install ./python` (the
-# documented build: maturin from PyPI in pip's isolated build environment, the crates from
-# crates.io as python/Cargo.lock pins them), then pytest on python/tests. CI runs it
-# (.ci/run). Extra arguments go to pytest.
+# The Python package in a venv of its own, then pytest on python/tests. Extra arguments go to
+# pytest.
 #
-#   scripts/python-test.sh [PYTEST ARGS...]
-#   scripts/python-test.sh --build-only       # the venv and the build, no tests
+#   scripts/python-test.sh [PYTEST ARGS...]   # as a user gets it: `pip install ./python`
+#   scripts/python-test.sh --build-only       # the venv and that build, no tests
 #   scripts/python-test.sh --no-build [ARGS]  # pytest on what --build-only installed
+#   scripts/python-test.sh --test-build [ARGS]  # pytest on the workspace's test build (CI)
+#   scripts/python-test.sh --setup-only       # only the venv (CI, early)
 #
-# CI starts `--build-only` in the background at its start, at the lowest priority, so that the
-# build uses the cores the Rust build and tests leave idle, and runs `--no-build` at its end.
+# - `pip install ./python` is the documented build: maturin from PyPI in pip's isolated build
+#   environment, the workspace's release profile, the crates as Cargo.lock pins them.
+# - --test-build takes the extension that `cargo test --all-targets --no-run` (the test
+#   profile) left in ${CARGO_TARGET_DIR:-target}/debug/lib_facepose.so: the same sources and
+#   crates, built with the rest of the workspace instead of a second, release build of the
+#   core (about 150 s of CPU). The package's Python files and that library are laid out in
+#   target/python-test-build/facepose, which goes first on PYTHONPATH. CI runs this
+#   (.ci/run); a release build's tests are this script without an option.
 # - The venv: target/python-venv, made once (numpy and pytest from PyPI).
-# - The build's cargo folder: target/python (CARGO_TARGET_DIR, when set, is kept).
+# - The release build's cargo folder: target/python (CARGO_TARGET_DIR, when set, is kept).
 # - The tests that compare with the CLI and the service take the binary from FACEPOSE_BIN,
 #   else target/{release,debug}/facepose, else build it.
 # - pytest's exit status is this script's: "no tests collected" is 5, a failure like any other;
@@ -20,17 +26,32 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=target/python-venv
 PIP=("$VENV/bin/pip" --quiet --disable-pip-version-check)
-build=1 test=1
+build=1 test=1 test_build=0 setup=0
 case "${1:-}" in
+--setup-only) build=0 test=0 setup=1; shift ;;
 --build-only) test=0; shift ;;
 --no-build) build=0; shift ;;
+--test-build) build=0 test_build=1; shift ;;
 esac
-if [ "$build" = 1 ]; then
+if [ "$build" = 1 ] || [ "$test_build" = 1 ] || [ "$setup" = 1 ]; then
     . scripts/lib/venv.sh
     venv_ensure --check 'import numpy, pytest' "$VENV" 'numpy>=1.21' 'pytest>=7' || {
         echo "cannot make $VENV (python3 -m venv, numpy and pytest from PyPI)" >&2
         exit 3
     }
+fi
+if [ "$test_build" = 1 ]; then
+    so=${CARGO_TARGET_DIR:-target}/debug/lib_facepose.so
+    [ -f "$so" ] || { echo "no $so: run cargo test --all-targets --no-run first" >&2; exit 1; }
+    pkg=target/python-test-build
+    rm -rf "$pkg"
+    mkdir -p "$pkg/facepose"
+    cp python/facepose/__init__.py python/facepose/_facepose.pyi python/facepose/py.typed "$pkg/facepose/"
+    cp "$so" "$pkg/facepose/_facepose.abi3.so"
+    export PYTHONPATH=$PWD/$pkg${PYTHONPATH:+:$PYTHONPATH}
+    echo "== the package from the test build ($so), in $pkg" >&2
+fi
+if [ "$build" = 1 ]; then
     export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$PWD/target/python}
     # .ci/run makes clippy-driver the compiler of the root workspace's crates; not of this build.
     unset RUSTC_WORKSPACE_WRAPPER CLIPPY_ARGS

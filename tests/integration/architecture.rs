@@ -77,6 +77,11 @@ fn crates_depend_only_downwards() {
             &["facepose-core", "facepose-files", "facepose-service"][..],
         ),
         ("facepose-protogen", &[][..]),
+        // The Python package: numbers in, poses out, like the CLI's estimate, with no service.
+        (
+            "facepose-python",
+            &["facepose-core", "facepose-files", "facepose-records"][..],
+        ),
         (
             "facepose",
             &[
@@ -102,7 +107,7 @@ fn crates_depend_only_downwards() {
         }
     }
     // What a layer must not link, whatever it is for.
-    let forbidden: [(&str, &[&str]); 4] = [
+    let forbidden: [(&str, &[&str]); 5] = [
         (
             "facepose-core",
             &[
@@ -115,6 +120,10 @@ fn crates_depend_only_downwards() {
             &["axum", "hyper", "tonic", "prost", "nalgebra"],
         ),
         ("facepose-service", &["nalgebra", "plotters", "png"]),
+        (
+            "facepose-python",
+            &["tokio", "axum", "hyper", "tonic", "facepose-service"],
+        ),
     ];
     for (krate, bad) in forbidden {
         for b in bad {
