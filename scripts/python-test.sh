@@ -10,12 +10,13 @@
 #
 # - `pip install ./python` is the documented build: maturin from PyPI in pip's isolated build
 #   environment, the workspace's release profile, the crates as Cargo.lock pins them.
-# - --test-build takes the extension that `cargo test --all-targets --no-run` (the test
-#   profile) left in ${CARGO_TARGET_DIR:-target}/debug/lib_facepose.so: the same sources and
-#   crates, built with the rest of the workspace instead of a second, release build of the
-#   core (about 150 s of CPU). The package's Python files and that library are laid out in
-#   target/python-test-build/facepose, which goes first on PYTHONPATH. CI runs this
-#   (.ci/run); a release build's tests are this script without an option.
+# - --test-build builds the extension in the test profile (`cargo build --profile test -p
+#   facepose-python`: after `cargo test`, only the crate itself is new), the same sources on the
+#   crates the workspace's tests already use, instead of a second, release build of the core
+#   (about 150 s of CPU). The package's Python files and ${CARGO_TARGET_DIR:-target}/debug/
+#   lib_facepose.so are laid out in target/python-test-build/facepose, which goes first on
+#   PYTHONPATH. CI runs this (.ci/run); a release build's tests are this script without an
+#   option.
 # - The venv: target/python-venv, made once (numpy and pytest from PyPI).
 # - The release build's cargo folder: target/python (CARGO_TARGET_DIR, when set, is kept).
 # - The tests that compare with the CLI and the service take the binary from FACEPOSE_BIN,
@@ -41,8 +42,11 @@ if [ "$build" = 1 ] || [ "$test_build" = 1 ] || [ "$setup" = 1 ]; then
     }
 fi
 if [ "$test_build" = 1 ]; then
+    # `cargo test` builds the library only as a test harness: the extension itself is this
+    # build, on the crates the test build compiled (with CI's clippy-driver, when it set one).
+    echo "== cargo build --profile test -p facepose-python (the extension)" >&2
+    cargo build --locked --quiet --profile test -p facepose-python
     so=${CARGO_TARGET_DIR:-target}/debug/lib_facepose.so
-    [ -f "$so" ] || { echo "no $so: run cargo test --all-targets --no-run first" >&2; exit 1; }
     pkg=target/python-test-build
     rm -rf "$pkg"
     mkdir -p "$pkg/facepose"
