@@ -308,10 +308,13 @@ impl PoseBody {
                     self.span_ends(chunk, i);
                 }
                 State::Str {
-                    key: false,
+                    key,
                     escaped: false,
                 } => {
                     let run = run_len(&chunk[i..], |b| b != b'"' && b != b'\\');
+                    if key {
+                        self.key_run(&chunk[i..i + run]);
+                    }
                     self.grow_token(run);
                     i += run;
                     if let Some(&b) = chunk.get(i) {
@@ -443,14 +446,17 @@ impl PoseBody {
         }
     }
 
-    /// Sets member `field` of the request (or of the current face) to the value `v`, by serde.
+    /// Sets member `field` of the request (or of the current face) to the value `v`: by serde,
+    /// but a name (a plain string or `null`) directly, as serde would read it.
     fn set(&mut self, field: Field, face: bool, v: &[u8]) -> Option<()> {
         fn de<T: DeserializeOwned>(v: &[u8]) -> Option<T> {
             serde_json::from_slice(v).ok()
         }
         macro_rules! assign {
-            ($target:expr, [$($variant:ident => $name:ident),* $(,)?]) => {
+            ($target:expr, names: [$($n_variant:ident => $n_name:ident),* $(,)?],
+             [$($variant:ident => $name:ident),* $(,)?]) => {
                 match field {
+                    $(Field::$n_variant => $target.$n_name = name(v)?,)*
                     $(Field::$variant => $target.$name = de(v)?,)*
                     _ => return None,
                 }
@@ -459,12 +465,14 @@ impl PoseBody {
         match (self.kind, face) {
             (BodyKind::Pose, _) => assign!(
                 self.pose,
-                [
+                names: [
                     Scheme => scheme,
                     Method => method,
                     Model => model,
-                    Camera => camera,
                     LandmarkStyle => landmark_style,
+                ],
+                [
+                    Camera => camera,
                     ImageSize => image_size,
                     Id => id,
                     Conventions => conventions,
@@ -473,12 +481,14 @@ impl PoseBody {
             ),
             (BodyKind::Batch { .. }, false) => assign!(
                 self.batch,
-                [
+                names: [
                     Scheme => scheme,
                     Method => method,
                     Model => model,
-                    Camera => camera,
                     LandmarkStyle => landmark_style,
+                ],
+                [
+                    Camera => camera,
                     ImageSize => image_size,
                     Conventions => conventions,
                     CameraOrientation => camera_orientation,
@@ -486,11 +496,13 @@ impl PoseBody {
             ),
             (BodyKind::Batch { .. }, true) => assign!(
                 self.face,
-                [
+                names: [
                     Scheme => scheme,
                     Method => method,
-                    Camera => camera,
                     LandmarkStyle => landmark_style,
+                ],
+                [
+                    Camera => camera,
                     ImageSize => image_size,
                     Id => id,
                     Conventions => conventions,
@@ -578,6 +590,19 @@ impl PoseBody {
                 _ => self.state = State::GaveUp,
             },
             State::GaveUp | State::Done | State::Points { .. } => {}
+        }
+    }
+
+    /// Plain bytes of a key (no quote, no escape), as [`byte`](Self::byte) takes them one by
+    /// one: kept while the key may still be one that is counted or built.
+    #[inline]
+    fn key_run(&mut self, bytes: &[u8]) {
+        let end = self.key_len.saturating_add(bytes.len());
+        if end <= self.key.len() && bytes.iter().all(|b| (0x20..0x7f).contains(b)) {
+            self.key[self.key_len..end].copy_from_slice(bytes);
+            self.key_len = end;
+        } else if !bytes.is_empty() {
+            self.key_len = usize::MAX;
         }
     }
 
@@ -777,34 +802,18 @@ impl PoseBody {
                     if self.lm_build
                         && depth == 0
                         && matches!(self.lm, Lm::Open | Lm::Next)
-                        && let Some((x, y, end)) = whole_point(chunk, i)
+                        && let Some(Open::Array { len, .. }) = self.stack.last_mut()
                     {
-                        // The usual landmark, whole in the chunk: nothing in it a limit
-                        // counts (its numbers are short), read in one go.
-                        self.points.push(Some([x, y]));
-                        self.lm = Lm::After;
-                        i = end;
-                        // And the ones after it, counted as the checks count them.
-                        loop {
-                            let comma = skip_ws(chunk, i);
-                            if chunk.get(comma) != Some(&b',') {
-                                break;
-                            }
-                            let start = skip_ws(chunk, comma + 1);
-                            let Some(Open::Array { len, .. }) = self.stack.last_mut() else {
-                                break;
-                            };
-                            if *len >= MAX_POINTS || chunk.get(start) != Some(&b'[') {
-                                break;
-                            }
-                            let Some((x, y, end)) = whole_point(chunk, start) else {
-                                break;
-                            };
-                            *len += 1;
-                            self.points.push(Some([x, y]));
+                        // The usual landmarks, whole in the chunk: nothing in them a limit
+                        // counts (their numbers are short), read in one go, and counted as
+                        // the checks count them (this one already is).
+                        let (end, read) = point_run(chunk, i, &mut self.points, MAX_POINTS - *len);
+                        if read > 0 {
+                            *len += read - 1;
+                            self.lm = Lm::After;
                             i = end;
+                            continue;
                         }
-                        continue;
                     }
                     depth += 1;
                     if self.lm_build {
@@ -972,6 +981,59 @@ impl PoseBody {
             _ => {}
         }
     }
+}
+
+/// An optional name's value `v` as serde reads it into an `Option<String>`: `null`, or a string
+/// with no escape and no control character read directly (370 instructions less for a body's
+/// scheme and method, `scripts/instructions.sh parse-pose-body`); anything else by serde, which
+/// also gives its error.
+fn name(v: &[u8]) -> Option<Option<String>> {
+    if v == b"null" {
+        return Some(None);
+    }
+    if let [b'"', inner @ .., b'"'] = v
+        && inner.iter().all(|&b| b >= 0x20 && b != b'"' && b != b'\\')
+        && let Ok(s) = std::str::from_utf8(inner)
+    {
+        return Some(Some(s.to_owned()));
+    }
+    serde_json::from_slice(v).ok()
+}
+
+/// The run of usual landmarks `[x, y], [x, y], ...` that starts at offset `i` of `chunk` (a
+/// `[`), each whole there ([`whole_point`]), pushed onto `points`: at most `room` more after the
+/// first. The offset past the last one read, and how many were read (0: the first is not whole
+/// in the chunk, or not usual). One loop with its counts in registers: the reader's own state
+/// is written once for the run.
+#[inline]
+fn point_run(
+    chunk: &[u8],
+    i: usize,
+    points: &mut Vec<Option<[f64; 2]>>,
+    room: usize,
+) -> (usize, usize) {
+    let Some((x, y, mut end)) = whole_point(chunk, i) else {
+        return (i, 0);
+    };
+    points.push(Some([x, y]));
+    let mut read = 1;
+    while read <= room {
+        let comma = skip_ws(chunk, end);
+        if chunk.get(comma) != Some(&b',') {
+            break;
+        }
+        let start = skip_ws(chunk, comma + 1);
+        if chunk.get(start) != Some(&b'[') {
+            break;
+        }
+        let Some((x, y, past)) = whole_point(chunk, start) else {
+            break;
+        };
+        points.push(Some([x, y]));
+        read += 1;
+        end = past;
+    }
+    (end, read)
 }
 
 /// The landmark `[x, y]` that starts at offset `i` of `chunk` (its `[`), if it is whole there

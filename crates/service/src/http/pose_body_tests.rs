@@ -404,3 +404,51 @@ fn a_member_or_a_number_cut_by_chunks_is_read() {
     assert_eq!(whole.landmarks.0[0], Some([125.0, -2.0]));
     assert_eq!(whole.id, serde_json::from_str("\"face-7\"").unwrap());
 }
+
+proptest! {
+    #![proptest_config(cases(600))]
+
+    /// A name's value is read as serde reads an `Option<String>`, whatever its bytes: quotes,
+    /// escapes, control characters, bytes that are not UTF-8.
+    #[test]
+    fn a_name_is_read_as_serde_reads_it(
+        inner in prop::collection::vec(
+            prop_oneof![
+                4 => prop::char::range('a', 'z').prop_map(|c| vec![c as u8]),
+                1 => prop::sample::select(vec![
+                    b"\"".to_vec(), b"\\".to_vec(), b"\\n".to_vec(), b"\\u00e9".to_vec(),
+                    b"\n".to_vec(), b"\x01".to_vec(), b"\x7f".to_vec(), "é".as_bytes().to_vec(),
+                    b"\xff".to_vec(), b"\xc3".to_vec(), b" ".to_vec(),
+                ]),
+            ],
+            0..8,
+        ),
+        quoted in any::<bool>(),
+    ) {
+        let inner = inner.concat();
+        let v = if quoted { [&b"\""[..], &inner, b"\""].concat() } else { inner };
+        prop_assert_eq!(
+            name(&v),
+            serde_json::from_slice::<Option<String>>(&v).ok(),
+            "{:?}",
+            String::from_utf8_lossy(&v)
+        );
+    }
+}
+
+#[test]
+fn names_plain_escaped_and_not_names() {
+    for (v, want) in [
+        (&b"\"ibug68\""[..], Some(Some("ibug68"))),
+        (b"\"\"", Some(Some(""))),
+        (b"null", Some(None)),
+        (b"\"a\\u0065\"", Some(Some("ae"))),
+        (b"\"\xc3\xa9\"", Some(Some("\u{e9}"))),
+        (b"\"a\x01\"", None),
+        (b"\"\xff\"", None),
+        (b"7", None),
+        (b"\"a", None),
+    ] {
+        assert_eq!(name(v), want.map(|w| w.map(String::from)), "{v:?}");
+    }
+}
