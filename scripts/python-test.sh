@@ -10,10 +10,11 @@
 #
 # - `pip install ./python` is the documented build: maturin from PyPI in pip's isolated build
 #   environment, the workspace's release profile, the crates as Cargo.lock pins them.
-# - --test-build builds the extension in the test profile (`cargo build --profile test -p
-#   facepose-python`: after `cargo test`, only the crate itself is new), the same sources on the
-#   crates the workspace's tests already use, instead of a second, release build of the core
-#   (about 150 s of CPU). The package's Python files and ${CARGO_TARGET_DIR:-target}/debug/
+# - --test-build builds the extension in the test profile as CI's build does (`cargo build
+#   --profile test --all-targets`: after CI's build, nothing is new; `-p facepose-python` alone
+#   would resolve the dependencies' features for that crate only, and build serde, nalgebra and
+#   the core a second time), the same sources on the crates the workspace's tests already use,
+#   instead of a second, release build of the core (about 150 s of CPU). The package's Python files and ${CARGO_TARGET_DIR:-target}/debug/
 #   lib_facepose.so are laid out in target/python-test-build/facepose, which goes first on
 #   PYTHONPATH. CI runs this (.ci/run); a release build's tests are this script without an
 #   option.
@@ -42,10 +43,10 @@ if [ "$build" = 1 ] || [ "$test_build" = 1 ] || [ "$setup" = 1 ]; then
     }
 fi
 if [ "$test_build" = 1 ]; then
-    # `cargo test` builds the library only as a test harness: the extension itself is this
-    # build, on the crates the test build compiled (with CI's clippy-driver, when it set one).
-    echo "== cargo build --profile test -p facepose-python (the extension)" >&2
-    cargo build --locked --quiet --profile test -p facepose-python
+    # `cargo test` builds the library only as a test harness; the extension is a target of the
+    # workspace's build of every target (CI's build: with its clippy-driver, when it set one).
+    echo "== cargo build --profile test --all-targets (the extension among them)" >&2
+    cargo build --locked --quiet --profile test --all-targets
     so=${CARGO_TARGET_DIR:-target}/debug/lib_facepose.so
     pkg=target/python-test-build
     rm -rf "$pkg"
