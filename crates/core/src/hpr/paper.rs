@@ -46,12 +46,15 @@ pub struct HprScratch {
 }
 
 /// From this many triangles step 4 looks a point up in a uniform grid of the triangles'
-/// bounding boxes instead of testing every box: a dense mesh's 898 triangles then cost a point
-/// a few box tests instead of 898 (training computes HPR on the mesh at every view; it took
-/// 84% of a retraining job's time before). A 68-point shape's 110 or so triangles stay on the
-/// plain loop, which is as fast there. Either way the same triangles are tested, so the answer
-/// is the same bit for bit.
-pub const GRID_FROM: usize = 256;
+/// bounding boxes instead of testing every box: a point then costs a few box tests instead of
+/// one per triangle. Training computes HPR on its shape or mesh at every view (it took 84% of a
+/// retraining job's time, and 45% with a 68-point shape): the 468-vertex mesh's 898 triangles
+/// went from 2.19 ms to 106 µs a pose, a 68-point shape's 110 or so from 19.7-22.5 to 7.4-7.8
+/// µs (`cargo bench -p facepose-core --bench hpr -- "hpr/paper"`, the grid off and on in one
+/// session). Below this, a handful of triangles (a five-point shape), the plain loop is as
+/// cheap as building the grid. Either way the same triangles are tested, so the answer is the
+/// same bit for bit.
+pub const GRID_FROM: usize = 32;
 
 impl PaperHpr {
     /// HPR over a triangulation with the paper's centroid depth test.
@@ -358,12 +361,19 @@ mod tests {
     /// A bumpy surface of 21 x 21 points (a dome with ripples), dense enough for the grid
     /// ([`GRID_FROM`]) and rough enough to hide points behind others when turned.
     fn bumpy() -> Vec<Vector3<f64>> {
+        bumpy_of(21)
+    }
+
+    /// The same surface sampled `side` x `side` times: 9 x 9 points have about as many
+    /// triangles as a 68-point face.
+    fn bumpy_of(side: usize) -> Vec<Vector3<f64>> {
+        let step = 100.0 / (side - 1) as f64;
         let mut v = Vec::new();
-        for r in 0..21 {
-            for c in 0..21 {
+        for r in 0..side {
+            for c in 0..side {
                 let (x, y) = (
-                    c as f64 * 5.0 - 50.0,
-                    r as f64 * 5.0 - 50.0 + 0.37 * c as f64,
+                    c as f64 * step - 50.0,
+                    r as f64 * step - 50.0 + 0.37 * c as f64,
                 );
                 let z = 30.0 * (-(x * x + y * y) / 300.0).exp()
                     + 10.0 * (x / 8.0).sin() * (y / 9.0).cos();
@@ -405,6 +415,16 @@ mod tests {
     }
 
     #[test]
+    fn a_face_sized_mesh_uses_the_grid() {
+        let tris = PaperHpr::from_frontal(&bumpy_of(9))
+            .unwrap()
+            .triangulation()
+            .triangles()
+            .len();
+        assert!((GRID_FROM..200).contains(&tris), "{tris}");
+    }
+
+    #[test]
     fn the_grid_is_used_and_hides_points() {
         let shape = bumpy();
         let hpr = PaperHpr::from_frontal(&shape).unwrap();
@@ -436,15 +456,16 @@ mod tests {
         #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
 
         /// The grid tests the same triangles as the plain loop: the same answer at any pose,
-        /// with either depth test.
+        /// with either depth test, on a dense mesh and on one of a face's 68 points' size.
         #[test]
         fn the_grid_answers_as_every_triangle_does(
             yaw in -120.0f64..120.0,
             pitch in -80.0f64..80.0,
             roll in -180.0f64..180.0,
             plane in proptest::bool::ANY,
+            side in proptest::sample::select(vec![9usize, 21]),
         ) {
-            let shape = bumpy();
+            let shape = bumpy_of(side);
             let test = if plane { DepthTest::Plane } else { DepthTest::Centroid };
             let hpr = PaperHpr::from_frontal(&shape).unwrap().with_depth_test(test);
             let r = EulerAngles::new(yaw, pitch, roll).unwrap().to_rotation();
