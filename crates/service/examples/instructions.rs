@@ -33,7 +33,7 @@ use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
 use facepose_files::data::{data_dir, load_aflw};
-use facepose_service::grpc::codec::FaceposeCodec;
+use facepose_service::grpc::codec::{FaceposeDecoder, Prebuilt};
 use facepose_service::grpc::convert::pose_message;
 use facepose_service::grpc::frame_guard::{FrameGuard, GuardedBody, Rpc};
 use facepose_service::grpc::landmark_messages;
@@ -47,7 +47,7 @@ use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
 use std::pin::Pin;
 use std::task::{Context, Poll};
-use tonic::codec::{Codec, Streaming};
+use tonic::codec::Streaming;
 
 /// What can be counted.
 const ENTRIES: [&str; 21] = [
@@ -134,13 +134,13 @@ fn server_decode(body: &Bytes) -> proto::EstimateBatchRequest {
         .map(|at| body.slice(at..(at + 16 * 1024).min(body.len())))
         .collect();
     chunks.reverse();
+    let prebuilt = Prebuilt::default();
     let guarded = GuardedBody::new(
         axum::body::Body::new(Received(chunks)),
-        FrameGuard::new(Rpc::EstimateBatch, 1000),
+        FrameGuard::new(Rpc::EstimateBatch, 1000).building_into(prebuilt.clone()),
     );
-    let mut codec =
-        FaceposeCodec::<proto::EstimateBatchResponse, proto::EstimateBatchRequest>::default();
-    let mut stream = Streaming::new_request(codec.decoder(), guarded, None, None);
+    let decoder = FaceposeDecoder::<proto::EstimateBatchRequest>::new(Some(prebuilt));
+    let mut stream = Streaming::new_request(decoder, guarded, None, None);
     let mut message = std::pin::pin!(stream.message());
     match message
         .as_mut()
