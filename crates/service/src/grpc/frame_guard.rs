@@ -29,6 +29,9 @@
 //! what prost decodes from the same bytes, however the body is cut into chunks (tested below).
 //!
 //! On anything malformed the walk skips to the message's end and leaves the message to prost.
+//! A group (wire types 3 and 4, nested or not) is passed over uncounted, as prost passes over
+//! the group of an unknown field and decodes what follows (it refuses a known field in that
+//! form): the walk counts what follows too, where it used to stop at a group.
 //! A compressed message is passed over whole: the server accepts no compression (tonic is
 //! built without it), so tonic refuses such a message before any decoder.
 
@@ -259,6 +262,8 @@ pub struct FrameGuard {
     t: Tally,
     /// Messages shorter than this are passed over.
     scan_from: u64,
+    /// Groups being passed over (nested): their fields are not counted.
+    group: u32,
     /// Where built messages go; `None`: the guard only checks.
     sink: Option<Prebuilt>,
     build: Build,
@@ -282,6 +287,7 @@ impl FrameGuard {
             open: Vec::with_capacity(2),
             t: Tally::default(),
             scan_from: SCAN_FROM as u64,
+            group: 0,
             sink: None,
             build: Build::Off,
             capture: None,
@@ -342,7 +348,7 @@ impl FrameGuard {
                 };
                 return 1;
             }
-            Step::Key if self.shift == 0 && self.in_face() => {
+            Step::Key if self.shift == 0 && self.group == 0 && self.in_face() => {
                 let used = self.face_fields(chunk, at);
                 if used > 0 {
                     self.settle();
@@ -406,7 +412,7 @@ impl FrameGuard {
             return;
         }
         if self.pos >= self.len {
-            let whole = self.step == Step::Key && self.shift == 0;
+            let whole = self.step == Step::Key && self.shift == 0 && self.group == 0;
             self.message_done(whole);
             self.step = Step::Prefix { got: 0 };
             (self.acc, self.shift) = (0, 0);
@@ -418,8 +424,8 @@ impl FrameGuard {
                 if end > self.pos {
                     break;
                 }
-                if end < self.pos {
-                    // A value ran past its face's end: not a message.
+                if end < self.pos || self.group > 0 {
+                    // A value (or a group) ran past its face's end: not a message.
                     return self.give_up();
                 }
                 self.open.pop();
@@ -450,7 +456,7 @@ impl FrameGuard {
             end: len,
             face: false,
         });
-        (self.capture, self.build) = (None, Build::Off);
+        (self.capture, self.build, self.group) = (None, Build::Off, 0);
         self.carry.clear();
         match (self.prefix[0], len) {
             // A short message costs little however it is made (the codec's rule too).
@@ -507,7 +513,7 @@ impl FrameGuard {
     /// Passes over the rest of the current message, whose bytes do not read as one.
     fn give_up(&mut self) {
         self.unbuilt();
-        self.capture = None;
+        (self.capture, self.group) = (None, 0);
         self.open.truncate(1);
         (self.acc, self.shift) = (0, 0);
         if self.pos >= self.len {
@@ -537,14 +543,30 @@ impl FrameGuard {
                     1 => WireType::SixtyFourBit,
                     2 => WireType::LengthDelimited,
                     5 => WireType::ThirtyTwoBit,
+                    // A group: prost passes over one of an unknown field and reads on (and
+                    // refuses a known field in that form), so its fields are passed over
+                    // uncounted, and what follows it counted. The message is prost's to build.
+                    3 => {
+                        self.unbuilt();
+                        self.group += 1;
+                        return;
+                    }
+                    4 if self.group > 0 => {
+                        self.group -= 1;
+                        return;
+                    }
                     _ => return self.give_up(),
                 };
                 if value > u64::from(u32::MAX) || field == 0 {
                     // prost refuses such a key.
                     self.unbuilt();
                 }
-                let in_face = self.in_face();
-                if matches!(self.build, Build::On(_)) || (in_face && matches!(field, 10 | 11)) {
+                let in_face = self.in_face() && self.group == 0;
+                if self.group > 0 {
+                    // Passed over: a value the next steps skip, uncounted.
+                } else if matches!(self.build, Build::On(_))
+                    || (in_face && matches!(field, 10 | 11))
+                {
                     self.carry.clear();
                     self.capture = Some(Capture {
                         tag: field,
@@ -573,7 +595,7 @@ impl FrameGuard {
                 };
             }
             Step::Varint { field } => {
-                if self.in_face() && field == 8 {
+                if self.in_face() && self.group == 0 && field == 8 {
                     self.t.missing += 1;
                     self.t.check_points();
                 }
@@ -598,7 +620,9 @@ impl FrameGuard {
             return self.give_up();
         }
         let (faces_field, model_field) = self.rpc.fields();
-        self.step = if self.in_face() {
+        self.step = if self.group > 0 {
+            skip(len)
+        } else if self.in_face() {
             self.t.face_field(field, len)
         } else if field == faces_field {
             self.t.faces += 1;
@@ -945,12 +969,43 @@ fn for_each_field<'a>(
                     None => return Ok(()),
                 }
             }
-            // Groups (3, 4) and unknown wire types: prost refuses them here.
+            // A group: passed over, as prost passes over an unknown one.
+            3 => match skip_group(&mut bytes) {
+                Some(()) => continue,
+                None => return Ok(()),
+            },
+            // An end of group with none open, unknown wire types: prost refuses them here.
             _ => return Ok(()),
         };
         f(field, value)?;
     }
     Ok(())
+}
+
+/// Passes over the fields of a group whose start was just read, up to its end (a group's
+/// nested groups with it); `None` if `bytes` ends first or does not read as fields.
+fn skip_group(bytes: &mut &[u8]) -> Option<()> {
+    let mut depth = 0u32;
+    loop {
+        let key = varint(bytes)?;
+        let n = match key & 7 {
+            0 => varint(bytes).map(|_| 0)?,
+            1 => 8,
+            2 => usize::try_from(varint(bytes)?).ok()?,
+            3 => {
+                depth += 1;
+                0
+            }
+            4 if depth == 0 => return Some(()),
+            4 => {
+                depth -= 1;
+                0
+            }
+            5 => 4,
+            _ => return None,
+        };
+        *bytes = bytes.get(n..)?;
+    }
 }
 
 /// A base-128 varint from the front of `bytes` (at most 10 bytes), advancing past it.
@@ -1655,5 +1710,58 @@ mod tests {
         g.feed(&body(&[batch(vec![proto::Face::default(); 3], "")]))
             .unwrap();
         assert_eq!(prebuilt.take::<proto::EstimateBatchRequest>(6), None);
+    }
+
+    #[test]
+    fn unknown_groups_are_passed_over_and_what_follows_counted() {
+        // prost skips a group of an unknown field and decodes on: the faces after it count.
+        let group = [0x7b, 0x0a, 0x00, 0x13, 0x08, 0x01, 0x14, 0x7c];
+        let mut bytes = group.to_vec();
+        bytes.extend(empty_faces(2_000));
+        assert_eq!(
+            proto::EstimateBatchRequest::decode(bytes.as_slice()).map(|b| b.faces.len()),
+            Ok(2_000)
+        );
+        let s = walked(Rpc::EstimateBatch, 1_000, &bytes).unwrap_err();
+        assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+        // A face inside the group is no face (prost skips it), nor a face's field there.
+        let mut bytes = group.to_vec();
+        bytes.extend(empty_faces(2));
+        assert!(walked(Rpc::EstimateBatch, 2, &bytes).is_ok());
+        let got = built::<proto::EstimateBatchRequest>(Rpc::EstimateBatch, 2, &bytes, &[]);
+        assert_eq!(got, Ok(None), "left to prost");
+        // In a face, and in a convention before its parameters.
+        let field = |key: u8, bytes: &[u8]| {
+            let mut out = vec![key];
+            prost::encoding::encode_varint(bytes.len() as u64, &mut out);
+            out.extend_from_slice(bytes);
+            out
+        };
+        let landmarks = |n| {
+            proto::Face {
+                landmarks: vec![proto::Landmark::default(); n],
+                ..Default::default()
+            }
+            .encode_to_vec()
+        };
+        let face = [
+            vec![0x7b],
+            landmarks(5),
+            vec![0x7c],
+            landmarks(MAX_POINTS + 1),
+        ]
+        .concat();
+        let s = walked(Rpc::Estimate, 1, &field(0x0a, &face)).unwrap_err();
+        assert!(s.message().contains("more than 1000 landmarks"), "{s:?}");
+        let convention = [
+            vec![0x7b, 0x7c],
+            convention("euler", MAX_PARAMS + 1).encode_to_vec(),
+        ]
+        .concat();
+        let face = field(0x52, &convention);
+        let f = proto::Face::decode(face.as_slice()).expect("prost skips the group");
+        assert_eq!(f.conventions[0].params.len(), MAX_PARAMS + 1);
+        let s = walked(Rpc::EstimateBatch, 1, &field(0x0a, &face)).unwrap_err();
+        assert!(s.message().contains("more than 8 parameters"), "{s:?}");
     }
 }
