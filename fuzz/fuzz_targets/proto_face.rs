@@ -1,14 +1,14 @@
 //! The hand-coded protobuf messages (`Face`, within `EstimateRequest`) against prost's derived
-//! code for the same `.proto`: the same messages accepted, the same values read. And the
-//! codec's walk before decoding never panics on any bytes; the guard that checks a call's
-//! body as it arrives gives the same verdict however the body is cut, and agrees with the
-//! codec's walk on a message within its limits. A face that decodes is then read as the
-//! estimator takes it (`FaceInput::spec`): its landmarks, and its conventions and camera
-//! orientation (`Face.conventions`, `Face.camera_orientation`) parsed, never panicking.
+//! code for the same `.proto`: the same messages accepted, the same values read. And the guard
+//! that checks a call's body as it arrives gives the same verdict however the body is cut, and
+//! what it builds on the way (the pose calls' three requests) is what prost's derived code
+//! decodes from the same bytes. A face that decodes is then read as the estimator takes it
+//! (`FaceInput::spec`): its landmarks, and its conventions and camera orientation
+//! (`Face.conventions`, `Face.camera_orientation`) parsed, never panicking.
 #![no_main]
 
 use facepose_app::estimate::{FaceInput, FaceScratch};
-use facepose_service::grpc::codec::{Bounded, DecodeLimits};
+use facepose_service::grpc::codec::Prebuilt;
 use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
 use facepose_service::proto;
 use libfuzzer_sys::fuzz_target;
@@ -46,12 +46,16 @@ fn same_face(a: &proto::Face, b: &reference::Face) {
     );
 }
 
-/// The guard's verdict on `data` as one uncompressed message of `rpc`, fed in `chunk`s.
-fn guarded(rpc: Rpc, data: &[u8], chunk: usize) -> bool {
+/// The guard's verdict on `data` as one uncompressed message of `rpc`, fed in `chunk`s (and
+/// building into `sink`, if any).
+fn guarded(rpc: Rpc, data: &[u8], chunk: usize, sink: Option<&Prebuilt>) -> bool {
     let mut body = vec![0];
     body.extend_from_slice(&(data.len() as u32).to_be_bytes());
     body.extend_from_slice(data);
     let mut g = FrameGuard::new(rpc, 8).scanning_from(0);
+    if let Some(sink) = sink {
+        g = g.building_into(sink.clone());
+    }
     let mut ok = true;
     for c in body.chunks(chunk) {
         ok = g.feed(c).is_ok();
@@ -59,26 +63,37 @@ fn guarded(rpc: Rpc, data: &[u8], chunk: usize) -> bool {
     ok
 }
 
+/// What the guard of `rpc` builds from `data` (fed in `chunk`s), if it builds it, is what
+/// prost's derived `R` decodes from it.
+fn builds_as_prost<U: Message + Default + 'static, R: Message + Default>(
+    rpc: Rpc,
+    data: &[u8],
+    chunk: usize,
+) {
+    let sink = Prebuilt::scanning_from(0);
+    if guarded(rpc, data, chunk, Some(&sink))
+        && let Some(built) = sink.take::<U>(data.len())
+    {
+        let theirs = R::decode(data).expect("the guard built a message prost refuses");
+        assert_eq!(built.encode_to_vec(), theirs.encode_to_vec());
+    }
+}
+
 fuzz_target!(|data: &[u8]| {
-    let limits = DecodeLimits { max_batch: 8 };
     let chunk = 1 + data.first().map_or(0, |&b| b as usize % 13);
     for rpc in [Rpc::Estimate, Rpc::EstimateBatch, Rpc::EstimateStream] {
         assert_eq!(
-            guarded(rpc, data, chunk),
-            guarded(rpc, data, data.len() + 5)
+            guarded(rpc, data, chunk, None),
+            guarded(rpc, data, data.len() + 5, None)
         );
     }
-    // What the guard refuses, the codec's walk (or prost) refuses too.
-    if !guarded(Rpc::EstimateBatch, data, chunk) && data.len() < 60_000 {
-        assert!(
-            proto::EstimateBatchRequest::check(data, &limits).is_err()
-                || proto::EstimateBatchRequest::decode(data).is_err(),
-            "the guard refused a batch the codec takes"
-        );
-    }
-    let _ = proto::EstimateRequest::check(data, &limits);
-    let _ = proto::EstimateBatchRequest::check(data, &limits);
-    let _ = proto::Frame::check(data, &limits);
+    builds_as_prost::<proto::EstimateRequest, reference::EstimateRequest>(Rpc::Estimate, data, chunk);
+    builds_as_prost::<proto::EstimateBatchRequest, reference::EstimateBatchRequest>(
+        Rpc::EstimateBatch,
+        data,
+        chunk,
+    );
+    builds_as_prost::<proto::Frame, reference::Frame>(Rpc::EstimateStream, data, chunk);
     let ours = proto::Face::decode(data);
     let theirs = reference::Face::decode(data);
     match (&ours, &theirs) {

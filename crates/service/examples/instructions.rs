@@ -15,8 +15,12 @@
 //! (every |angle| <= 99°, as benches/real_faces.rs) in turn, one a call: with CALLS a multiple
 //! of their count, the mean over the faces (they need the shared data: FACEPOSE_DATA, else
 //! ../shared/data). The `estimate-mediapipe-…` entries estimate MediaPipe's 478 points on the
-//! astronaut photograph (tests/fixtures/detectors/mediapipe.json).
+//! astronaut photograph (tests/fixtures/detectors/mediapipe.json). The `grpc-batch64-…`
+//! entries decode an `EstimateBatch` request of 64 such faces (`xy` packed, or landmark
+//! messages) as the server does: its body in 16 KiB chunks through the pose calls' guard and
+//! tonic's framing to the codec's decoder (a call is one request: divide by 64 for a face).
 
+use axum::body::Bytes;
 use facepose_app::estimate::{FaceInput, FaceScratch};
 use facepose_app::pose::{FaceSpec, estimate_face};
 use facepose_app::registry::load_models;
@@ -29,8 +33,9 @@ use facepose_core::pose::{Method, estimate};
 use facepose_core::shape::Shape2;
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
 use facepose_files::data::{data_dir, load_aflw};
+use facepose_service::grpc::codec::{FaceposeDecoder, Prebuilt};
 use facepose_service::grpc::convert::pose_message;
-use facepose_service::grpc::frame_guard::{FrameGuard, Rpc};
+use facepose_service::grpc::frame_guard::{FrameGuard, GuardedBody, Rpc};
 use facepose_service::grpc::landmark_messages;
 use facepose_service::http::pose::{parse_pose_request, pose_request};
 use facepose_service::http::pose_body::{BodyKind, PoseBody};
@@ -40,9 +45,12 @@ use prost::Message;
 use rand::{SeedableRng, rngs::StdRng};
 use rand_distr::{Distribution, Normal};
 use std::hint::black_box;
+use std::pin::Pin;
+use std::task::{Context, Poll};
+use tonic::codec::Streaming;
 
 /// What can be counted.
-const ENTRIES: [&str; 19] = [
+const ENTRIES: [&str; 21] = [
     "none",
     "fit",
     "fit-shape",
@@ -62,6 +70,8 @@ const ENTRIES: [&str; 19] = [
     "estimate-fit-dev-reannotated",
     "estimate-mediapipe-auto",
     "estimate-mediapipe-fit",
+    "grpc-batch64-xy",
+    "grpc-batch64-landmarks",
 ];
 
 /// MediaPipe's 478 points on the astronaut photograph (tests/fixtures/detectors/), in pixels.
@@ -99,6 +109,49 @@ fn dev_faces(set: &str) -> Vec<Shape2> {
             Shape2::full(pts.iter().map(|p| Vector2::new(p[0], p[1])).collect()).unwrap()
         })
         .collect()
+}
+
+/// A request body already received, in the chunks HTTP/2 delivers (16 KiB DATA frames).
+struct Received(Vec<Bytes>);
+
+impl http_body::Body for Received {
+    type Data = Bytes;
+    type Error = std::convert::Infallible;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        _: &mut Context<'_>,
+    ) -> Poll<Option<Result<http_body::Frame<Bytes>, Self::Error>>> {
+        Poll::Ready(self.0.pop().map(|b| Ok(http_body::Frame::data(b))))
+    }
+}
+
+/// `body` (one framed `EstimateBatchRequest`) decoded as the server decodes it: through the
+/// guard of `EstimateBatch` and the codec's decoder, under tonic's `Streaming`.
+fn server_decode(body: &Bytes) -> proto::EstimateBatchRequest {
+    let mut chunks: Vec<Bytes> = (0..body.len())
+        .step_by(16 * 1024)
+        .map(|at| body.slice(at..(at + 16 * 1024).min(body.len())))
+        .collect();
+    chunks.reverse();
+    let prebuilt = Prebuilt::default();
+    let guarded = GuardedBody::new(
+        axum::body::Body::new(Received(chunks)),
+        FrameGuard::new(Rpc::EstimateBatch, 1000).building_into(prebuilt.clone()),
+    );
+    let decoder = FaceposeDecoder::<proto::EstimateBatchRequest>::new(Some(prebuilt));
+    let mut stream = Streaming::new_request(decoder, guarded, None, None);
+    let mut message = std::pin::pin!(stream.message());
+    match message
+        .as_mut()
+        .poll(&mut Context::from_waker(std::task::Waker::noop()))
+    {
+        Poll::Ready(Ok(Some(request))) => request,
+        other => panic!(
+            "the batch decodes at once: {:?}",
+            other.map(|r| r.map(drop))
+        ),
+    }
 }
 
 fn main() {
@@ -176,14 +229,35 @@ fn main() {
         .encode_to_vec()
     };
     let with_messages = grpc_request(grpc_face.clone());
-    let packed = grpc_request(proto::Face {
+    let packed_face = proto::Face {
         landmarks: vec![],
         xy: xy.iter().flatten().copied().collect(),
-        ..grpc_face
-    });
-    let mut framed = vec![0];
-    framed.extend_from_slice(&(with_messages.len() as u32).to_be_bytes());
-    framed.extend_from_slice(&with_messages);
+        ..grpc_face.clone()
+    };
+    let packed = grpc_request(packed_face.clone());
+    let frame = |message: &[u8]| {
+        let mut framed = vec![0];
+        framed.extend_from_slice(&(message.len() as u32).to_be_bytes());
+        framed.extend_from_slice(message);
+        framed
+    };
+    let framed = frame(&with_messages);
+    // 64 such faces in one EstimateBatch request, framed, as HTTP/2 DATA frames of 16 KiB.
+    let batch64 = |face: &proto::Face| {
+        let faces = (0..64)
+            .map(|i| proto::Face {
+                id: format!("f{i}"),
+                ..face.clone()
+            })
+            .collect();
+        let request = proto::EstimateBatchRequest {
+            faces,
+            model: String::new(),
+        };
+        Bytes::from(frame(&request.encode_to_vec()))
+    };
+    let batch64_xy = batch64(&packed_face);
+    let batch64_landmarks = batch64(&grpc_face);
     // Warm the regression's per-pattern cache, as a service is after its first query.
     let _ = estimate(&model, "ibug68", &lm, Method::Regression);
     let dev = match what.rsplit_once("-dev-") {
@@ -243,6 +317,12 @@ fn main() {
                 let pose = estimate_face(&served, &spec).unwrap();
                 let message = pose_message(&pose, Smoothed::default());
                 drop(black_box(message.encode_to_vec()));
+            }
+            // A large request as the server reads it: the body through the pose calls' guard,
+            // tonic's framing and the codec's decoder.
+            "grpc-batch64-xy" => drop(black_box(server_decode(black_box(&batch64_xy)))),
+            "grpc-batch64-landmarks" => {
+                drop(black_box(server_decode(black_box(&batch64_landmarks))))
             }
             // MediaPipe's points as `auto` answers them (the detector regression) and as it
             // did before it (the rigid fit of the mesh).

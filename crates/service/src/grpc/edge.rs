@@ -1,8 +1,9 @@
-//! What wraps every `facepose.v1.PoseService` call before tonic sees it: the pose calls' limits
-//! checked on their bytes as they arrive ([`super::frame_guard`]), the server's limits for the
-//! codec ([`DecodeLimits`]), and the failures that happen before a handler runs (a message
-//! over `--max-body`, a message that does not decode or is over its limits) mapped like the
-//! rest and counted in `facepose_grpc_requests_total`, which the handlers count otherwise.
+//! What wraps every `facepose.v1.PoseService` call before tonic sees it: the pose calls'
+//! messages checked against their limits and built as they arrive ([`super::frame_guard`]),
+//! for the codec's decoder of the same call ([`Prebuilt`]), and the failures that happen before
+//! a handler runs (a message over `--max-body`, a message that does not decode or is over its
+//! limits) mapped like the rest and counted in `facepose_grpc_requests_total`, which the
+//! handlers count otherwise.
 
 use std::sync::Arc;
 
@@ -12,7 +13,7 @@ use axum::response::{IntoResponse, Response};
 use facepose_app::App;
 use tonic::Status;
 
-use super::codec::{DecodeLimits, REFUSED_BEFORE_DECODING};
+use super::codec::{Prebuilt, REFUSED_BEFORE_DECODING};
 use super::error::{code_name, is_too_large, too_large_message};
 use super::frame_guard::{FrameGuard, GuardedBody, Rpc};
 use axum::body::Body;
@@ -45,20 +46,17 @@ pub fn rpc_label(path: &str) -> &'static str {
 /// The middleware: see the module doc.
 pub async fn edge(State(app): State<Arc<App>>, req: Request, next: Next) -> Response {
     let rpc = rpc_label(req.uri().path());
-    let limits = DecodeLimits {
-        max_batch: app.limits.max_batch,
+    // The pose calls' messages are checked as they arrive, before tonic holds them whole, and
+    // built on the way for the call's decoder.
+    let mut resp = match Rpc::of(req.uri().path()) {
+        Some(call) => {
+            let prebuilt = Prebuilt::default();
+            let guard = FrameGuard::new(call, app.limits.max_batch).building_into(prebuilt.clone());
+            let req = req.map(|body| Body::new(GuardedBody::new(body, guard)));
+            prebuilt.scope(next.run(req)).await
+        }
+        None => next.run(req).await,
     };
-    // The pose calls' messages are checked as they arrive, before tonic holds them whole.
-    let req = match Rpc::of(req.uri().path()) {
-        Some(call) => req.map(|body| {
-            Body::new(GuardedBody::new(
-                body,
-                FrameGuard::new(call, limits.max_batch),
-            ))
-        }),
-        None => req,
-    };
-    let mut resp = limits.scope(next.run(req)).await;
     // A status in the headers is a call that failed without a body: tonic's own checks and
     // the codec's come this way, before any handler.
     let Some(status) = Status::from_header_map(resp.headers()) else {

@@ -11,6 +11,9 @@
 //! length in one byte or the usual varint, a landmark with nothing but its three fields. Anything
 //! else goes to prost's own functions, from the same place in the buffer, so what is accepted,
 //! what is refused and with which error are prost's. Encoding gives prost's bytes exactly.
+//! The gRPC guard (`grpc/frame_guard.rs`) builds the faces of a long message with this same
+//! `merge_field`, one field at a time from a slice that holds the whole field, so the shortcuts
+//! apply there too.
 //! The tests hold both types to prost's derived code for the same `.proto` (`facepose-protogen` writes it
 //! to `generated/reference/`), on random messages and on corrupted bytes.
 //!
@@ -478,13 +481,13 @@ fn flat_landmark(b: &[u8]) -> Option<(Landmark, usize)> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
 
     /// prost's derived code for the same `.proto`.
     #[allow(clippy::all, missing_docs, dead_code)]
-    mod reference {
+    pub(crate) mod reference {
         include!("generated/reference/facepose.v1.rs");
     }
 
@@ -602,7 +605,7 @@ mod tests {
     }
 
     prop_compose! {
-        fn faces()(
+        pub(crate) fn faces()(
             points in proptest::collection::vec((any_f64(), any_f64(), any::<bool>()), 0..80),
             scheme in text(), method in text(), id in text(), style in text(),
             camera in proptest::option::of((any_f64(), any_f64(), any_f64(), any_f64())),
@@ -731,7 +734,7 @@ mod tests {
     }
 
     /// `bytes` with a few bytes changed and the end cut: the inputs a shortcut gets wrong.
-    fn corrupted(bytes: &[u8], edits: &[(usize, u8)], cut: usize) -> Vec<u8> {
+    pub(crate) fn corrupted(bytes: &[u8], edits: &[(usize, u8)], cut: usize) -> Vec<u8> {
         let mut b = bytes.to_vec();
         for &(at, v) in edits {
             if !b.is_empty() {
