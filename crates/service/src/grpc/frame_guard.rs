@@ -424,8 +424,10 @@ impl FrameGuard {
                 if end > self.pos {
                     break;
                 }
-                if end < self.pos || self.group > 0 {
-                    // A value (or a group) ran past its face's end: not a message.
+                if end < self.pos || self.group > 0 || self.shift > 0 {
+                    // A value, a group or a key's varint ran past its face's end: not a
+                    // message (prost refuses a key cut by its face's end; read on, its bytes
+                    // would join the next ones into another key).
                     return self.give_up();
                 }
                 self.open.pop();
@@ -1710,6 +1712,27 @@ mod tests {
         g.feed(&body(&[batch(vec![proto::Face::default(); 3], "")]))
             .unwrap();
         assert_eq!(prebuilt.take::<proto::EstimateBatchRequest>(6), None);
+    }
+
+    #[test]
+    fn a_key_cut_by_its_face_end_is_left_to_prost() {
+        // A face whose one byte starts a key, then bytes that would end that key as another
+        // field's: prost refuses the face (found by the proto_face fuzz target).
+        let bytes = [0x1a, 0x01, 0x80, 0x53, 0x00];
+        assert!(reference::Frame::decode(&bytes[..]).is_err());
+        let every_byte: Vec<usize> = (1..bytes.len() + 5).collect();
+        for cuts in [&[][..], &every_byte] {
+            let got = built::<proto::Frame>(Rpc::EstimateStream, 8, &bytes, cuts);
+            assert_eq!(got, Ok(None), "left to prost, cut at {cuts:?}");
+        }
+        let (faces, err) = served::<proto::Frame>(
+            Rpc::EstimateStream,
+            8,
+            cut(&body(&[bytes.to_vec()]), &every_byte),
+            true,
+        );
+        assert!(faces.is_empty());
+        assert_eq!(err.map(|s| s.code()), Some(Code::InvalidArgument));
     }
 
     #[test]
