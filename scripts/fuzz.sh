@@ -10,7 +10,7 @@
 # fuzz/artifacts/<target>/ (reproduce: cargo +nightly fuzz run <target> <file>). Built without
 # a sanitizer (-s none): the targets are safe Rust, so the checks are the code's own panics and
 # the targets' assertions, at several times the executions per second of AddressSanitizer.
-# Not part of CI.
+# Exits 1 if any target crashed (after the table). Not part of CI.
 set -euo pipefail
 cd "$(dirname "$0")/../fuzz"
 SECONDS_PER_TARGET=${SECONDS_PER_TARGET:-60}
@@ -22,7 +22,7 @@ cargo +nightly fuzz build -s none 2>&1 | tail -1
 WORK=$(mktemp -d)
 trap 'rm -rf "$WORK"' EXIT
 printf '| target | seconds | executions | crashes |\n|---|---|---|---|\n'
-total=0
+total=0 crashed=0
 for t in "${TARGETS[@]}"; do
     mkdir -p "$WORK/$t" "artifacts/$t"
     before=$(find "artifacts/$t" -type f | wc -l)
@@ -33,6 +33,10 @@ for t in "${TARGETS[@]}"; do
     crashes=$(( $(find "artifacts/$t" -type f | wc -l) - before ))
     total=$(( total + ${runs:-0} ))
     printf '| `%s` | %s | %s | %s |\n' "$t" "$SECONDS_PER_TARGET" "${runs:-?}" "$crashes"
-    if [ "$crashes" -gt 0 ]; then grep -m3 -E "panicked|ERROR" "$WORK/$t.log" >&2 || true; fi
+    if [ "$crashes" -gt 0 ]; then
+        crashed=1
+        grep -m3 -E "panicked|ERROR" "$WORK/$t.log" >&2 || true
+    fi
 done
 printf '| all | | %s | |\n' "$total"
+exit "$crashed"
