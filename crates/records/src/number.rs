@@ -41,8 +41,113 @@ const FRACTION_BITS: u64 = (1 << 52) - 1;
 /// of the range of `f64`) and the offset just past it, or `None` if no JSON number starts there.
 /// It reads the longest number there and stops at the first byte that cannot continue it; what
 /// follows is the caller's to check.
-#[inline]
+///
+/// A short number ([`short`]: what detectors and annotations give, `121.0`, `-37.25`) is read
+/// in place with no call; anything else by [`general`].
+#[inline(always)]
 pub(crate) fn read(b: &[u8], start: usize) -> Option<(f64, usize)> {
+    match short(b, start) {
+        Some(read) => Some(read),
+        None => general(b, start),
+    }
+}
+
+/// The flags (high bit of each byte) of the bytes of `v` that are not ASCII digits: `c + 0x46`
+/// reaches 0x80 from 0x3a up, `c - 0x30` wraps below 0x30. Carries and borrows start only at
+/// such bytes and move to later ones, so the first flagged byte is the first non-digit.
+#[inline(always)]
+fn not_digits(v: u64) -> u64 {
+    (v.wrapping_add(0x4646_4646_4646_4646) | v.wrapping_sub(0x3030_3030_3030_3030))
+        & 0x8080_8080_8080_8080
+}
+
+/// The value of the first `n` (1 ..= 7) ASCII digits of `v` (the first in the low byte).
+#[inline(always)]
+fn first_digits(v: u64, n: usize) -> u64 {
+    // The first n bytes (the low ones) moved up, '0's in front: the same n-digit value.
+    eight_digits((v << (8 * (8 - n))) | (0x3030_3030_3030_3030 >> (8 * n)))
+}
+
+/// The usual number of a landmark list, read without a loop: an optional `-`, one to seven
+/// integer digits (no leading zero), optionally `.` and one to fifteen fraction digits (nineteen
+/// digits at most), no exponent, with 16 bytes of the body from its first digit on (24 past the
+/// point for more than seven fraction digits). Its digits make the same `w` and `q` as
+/// [`general`] gathers, and its value is what [`general`]'s shortcuts make of them: `w / 10^f`
+/// when `w ≤ 2^53` (the first shortcut's very operation on the same operands; `f ≤ 15`, both
+/// exact), else [`nearest`] itself. `None`: not such a number, or the shortcuts cannot tell;
+/// [`general`] reads it.
+#[inline(always)]
+fn short(b: &[u8], start: usize) -> Option<(f64, usize)> {
+    let negative = *b.get(start)? == b'-';
+    let s = start + usize::from(negative);
+    let window: &[u8; 16] = b.get(s..s + 16)?.try_into().ok()?;
+    let head = u64::from_le_bytes(window[..8].try_into().ok()?);
+    let n = (not_digits(head).trailing_zeros() / 8) as usize;
+    if n == 0 || n == 8 || (n > 1 && window[0] == b'0') {
+        return None;
+    }
+    let (w, f) = if window[n] == b'.' {
+        let tail = u64::from_le_bytes(window[n + 1..n + 9].try_into().ok()?);
+        match (not_digits(tail).trailing_zeros() / 8) as usize {
+            0 => return None,
+            // The integer digits, then the bytes after the point: the digits without the
+            // point, seven at most, read at once.
+            f if n + f < 8 => {
+                let next = u64::from_le_bytes(window[1..9].try_into().ok()?);
+                let low = (1 << (8 * n)) - 1;
+                (first_digits((head & low) | (next & !low), n + f), f)
+            }
+            f @ 1..=7 => (
+                first_digits(head, n) * POW10_U64[f] + first_digits(tail, f),
+                f,
+            ),
+            _ => long_fraction(b, s + n + 9, first_digits(head, n), tail, n)?,
+        }
+    } else {
+        (first_digits(head, n), 0)
+    };
+    let end = s + n + usize::from(f > 0) + f;
+    if b.get(end).is_some_and(|&c| c | 0x20 == b'e') {
+        return None;
+    }
+    let v = if w <= 1 << 53 {
+        // Exact: w < 2^53.
+        (w as i64) as f64 / POW10_F64[f]
+    } else {
+        far(w, -(f as i64))?
+    };
+    Some((if negative { -v } else { v }, end))
+}
+
+/// `w` (`n` ≤ 7 integer digits) and the first eight fraction digits `tail` of [`short`]'s
+/// number, with the fraction digits from `at` on: `w` and the count of fraction digits, when
+/// there are at most fifteen and nineteen digits in all.
+#[inline(always)]
+fn long_fraction(b: &[u8], at: usize, w: u64, tail: u64, n: usize) -> Option<(u64, usize)> {
+    let more = u64::from_le_bytes(b.get(at..at + 8)?.try_into().ok()?);
+    let f = (not_digits(more).trailing_zeros() / 8) as usize;
+    if f == 8 || n + 8 + f > 19 {
+        return None;
+    }
+    // At most 15 digits, then at most 19: within a `u64`.
+    let w = w * 100_000_000 + eight_digits(tail);
+    let w = if f > 0 {
+        w * POW10_U64[f] + first_digits(more, f)
+    } else {
+        w
+    };
+    Some((w, 8 + f))
+}
+
+/// [`nearest`] out of line, for [`short`]'s numbers of more than 2^53.
+#[inline(never)]
+fn far(w: u64, q: i64) -> Option<f64> {
+    nearest(w, q)
+}
+
+/// [`read`] for any number.
+#[inline(never)]
+fn general(b: &[u8], start: usize) -> Option<(f64, usize)> {
     let negative = b.get(start) == Some(&b'-');
     let mut i = start + usize::from(negative);
     let int_start = i;
@@ -114,12 +219,7 @@ fn digits(b: &[u8], mut i: usize, mut w: u64) -> (u64, usize) {
     let start = i;
     while let Some(chunk) = b.get(i..i + 8) {
         let v = u64::from_le_bytes(chunk.try_into().expect("eight bytes"));
-        // The high bit of each byte that is not an ASCII digit: `c + 0x46` reaches 0x80 from
-        // 0x3a up, `c - 0x30` wraps below 0x30. Carries and borrows start only at such bytes and
-        // move to later ones, so the first flagged byte is the first non-digit.
-        let not_digit = (v.wrapping_add(0x4646_4646_4646_4646)
-            | v.wrapping_sub(0x3030_3030_3030_3030))
-            & 0x8080_8080_8080_8080;
+        let not_digit = not_digits(v);
         if not_digit == 0 {
             w = w.wrapping_mul(100_000_000).wrapping_add(eight_digits(v));
             i += 8;
@@ -127,11 +227,9 @@ fn digits(b: &[u8], mut i: usize, mut w: u64) -> (u64, usize) {
         }
         let n = (not_digit.trailing_zeros() / 8) as usize;
         if n > 0 {
-            // The first n bytes (the low ones) moved up, '0's in front: the same n-digit value.
-            let padded = (v << (8 * (8 - n))) | (0x3030_3030_3030_3030 >> (8 * n));
             w = w
                 .wrapping_mul(POW10_U64[n])
-                .wrapping_add(eight_digits(padded));
+                .wrapping_add(first_digits(v, n));
         }
         return (w, i + n - start);
     }
@@ -143,7 +241,7 @@ fn digits(b: &[u8], mut i: usize, mut w: u64) -> (u64, usize) {
 }
 
 /// The value of eight ASCII digits, the first in the low byte of `v`.
-#[inline]
+#[inline(always)]
 fn eight_digits(v: u64) -> u64 {
     let v = v - 0x3030_3030_3030_3030;
     // Pairs, then quadruples, then the whole (the multipliers put 10^k at each lane).
@@ -289,6 +387,65 @@ mod tests {
             prop_assume!(w > 0 && w < 10i128.pow(19));
             let (int, frac) = (w as u128 / scale, w as u128 % scale);
             agrees_with_std(&format!("{int}.{frac:0>k$}", k = k as usize))?;
+        }
+    }
+
+    /// Bit patterns of `general`'s answer, to compare answers with `==` (NaN never comes out).
+    fn bits(r: Option<(f64, usize)>) -> Option<(u64, usize)> {
+        r.map(|(v, end)| (v.to_bits(), end))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(5000))]
+
+        /// Whatever the text, the fast path either declines or answers as the general reader
+        /// does, bit for bit and to the same offset; so `read` is `general`.
+        #[test]
+        fn the_short_path_answers_as_the_general_reader(
+            text in "-?[0-9]{0,9}(\\.[0-9]{0,18})?([eE][+-]?[0-9]{0,3})?",
+            tail in "[],} \n\t0-9eE.+x-]{0,30}",
+            lead in "[ ,\\[]{0,2}",
+        ) {
+            let body = format!("{lead}{text}{tail}");
+            let b = body.as_bytes();
+            for start in 0..=b.len() {
+                let want = bits(general(b, start));
+                if let Some(got) = short(b, start) {
+                    prop_assert_eq!(Some(got).map(|(v, e)| (v.to_bits(), e)), want, "{:?} at {}", body, start);
+                }
+                prop_assert_eq!(bits(read(b, start)), want, "{:?} at {}", body, start);
+            }
+        }
+
+        /// The numbers it is for take it: up to seven digits either side of the point, or an
+        /// integer, with the rest of a landmark list after them.
+        #[test]
+        fn usual_coordinates_take_the_short_path(
+            text in "-?(0|[1-9][0-9]{0,6})(\\.[0-9]{1,7})?",
+            tail in "(\\]|,|\\],\\[|, |\\]\\]\\}|\\],\\n)",
+        ) {
+            let body = format!("{text}{tail}0123456789abcdef");
+            let got = short(body.as_bytes(), 0);
+            prop_assert!(got.is_some(), "{:?}", body);
+            prop_assert_eq!(bits(got), bits(general(body.as_bytes(), 0)));
+            prop_assert_eq!(got.map(|(_, e)| e), Some(text.len()));
+            prop_assert_eq!(got.map(|(v, _)| v.to_bits()), Some(text.parse::<f64>().unwrap().to_bits()));
+        }
+
+        /// Coordinates computed in doubles (up to 17 significant digits) take it too, unless
+        /// the shortcuts cannot tell, and read as std reads them.
+        #[test]
+        fn long_fractions_read_as_std_reads_them(
+            v in -5000.0f64..5000.0,
+            tail in "(\\]|,|\\],\\[)",
+        ) {
+            let text = format!("{v}");
+            let body = format!("{text}{tail}0123456789abcdef01234567");
+            let want = Some((v.to_bits(), text.len()));
+            if let Some(got) = short(body.as_bytes(), 0) {
+                prop_assert_eq!(Some((got.0.to_bits(), got.1)), want);
+            }
+            prop_assert_eq!(bits(read(body.as_bytes(), 0)), want);
         }
     }
 

@@ -1038,20 +1038,24 @@ fn point_run(
 
 /// The landmark `[x, y]` that starts at offset `i` of `chunk` (its `[`), if it is whole there
 /// with numbers of at most [`MAX_TOKEN`] bytes: its coordinates and the offset past its `]`.
-#[inline]
+#[inline(always)]
 fn whole_point(chunk: &[u8], i: usize) -> Option<(f64, f64, usize)> {
-    let number = |j: usize| {
-        let (v, end) = read_number(chunk, j)?;
-        (v.is_finite() && end - j <= MAX_TOKEN).then_some((v, end))
-    };
-    let (x, end) = number(skip_ws(chunk, i + 1))?;
+    let (x, end) = point_number(chunk, skip_ws(chunk, i + 1))?;
     let j = skip_ws(chunk, end);
     if chunk.get(j) != Some(&b',') {
         return None;
     }
-    let (y, end) = number(skip_ws(chunk, j + 1))?;
+    let (y, end) = point_number(chunk, skip_ws(chunk, j + 1))?;
     let j = skip_ws(chunk, end);
     (chunk.get(j) == Some(&b']')).then_some((x, y, j + 1))
+}
+
+/// A coordinate of [`whole_point`] at offset `j` of `chunk`: finite, of at most [`MAX_TOKEN`]
+/// bytes.
+#[inline(always)]
+fn point_number(chunk: &[u8], j: usize) -> Option<(f64, usize)> {
+    let (v, end) = read_number(chunk, j)?;
+    (v.is_finite() && end - j <= MAX_TOKEN).then_some((v, end))
 }
 
 /// JSON's white space (`is_ascii_whitespace` has form feed too).
