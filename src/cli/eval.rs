@@ -111,6 +111,10 @@ pub struct EvalArgs {
     /// Rendered protocol: the identities of the headline tables (the other split is shown too).
     #[arg(long, value_enum, default_value_t = Split::Test)]
     split: Split,
+    /// Rendered protocol: the trajectories' Kalman filter's acceleration noise, degrees/s²
+    /// (default: the stream's, 150).
+    #[arg(long, value_name = "DEG_PER_S2")]
+    kalman_acceleration: Option<f64>,
     #[command(flatten)]
     data: DataArg,
     #[command(flatten)]
@@ -659,6 +663,7 @@ fn run_rendered(
     methods: &[Method],
     progress: &Reporter,
 ) -> Result<(String, serde_json::Value), CliError> {
+    use facepose_core::geometry::rotation_kalman::KalmanParams;
     use facepose_eval::rendered::{rendered_markdown, rendered_protocol};
     let dir = rendered_dir(a);
     progress.stage(format_args!("rendered: reading {}", dir.display()));
@@ -668,8 +673,15 @@ fn run_rendered(
         "rendered: {} records, every input and method",
         records.len()
     ));
+    let kalman = KalmanParams {
+        acceleration_deg_s2: a
+            .kalman_acceleration
+            .unwrap_or(KalmanParams::default().acceleration_deg_s2),
+        ..KalmanParams::default()
+    };
+    kalman.validate()?;
     let t = Instant::now();
-    let report = rendered_protocol(&model, &records, methods);
+    let report = rendered_protocol(&model, &records, methods, kalman);
     let secs = t.elapsed().as_secs_f64();
     let text = format!(
         "## Rendered benchmark: detector landmarks (issue 37)\n\n\
@@ -691,7 +703,9 @@ fn run_rendered(
          `train` identities only (`facepose train --detector-renders`), so its `train` rows are \
          in-sample and only its `test` rows measure it. OpenCV SQPnP on the same points is not in \
          this report yet (a follow-up: it needs a script writing a fixture). \
+         The trajectories' Kalman filter runs at {acc}°/s² of acceleration noise. \
          crates/eval/src/rendered.rs has the details. Evaluation {secs:.1} s.\n\n{body}",
+        acc = kalman.acceleration_deg_s2,
         dir = dir.display(),
         n = report.records,
         st = report.static_renders,

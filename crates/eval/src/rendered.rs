@@ -502,11 +502,14 @@ pub struct RenderedReport {
 /// The filters of the trajectories.
 pub const FILTERS: [&str; 3] = ["raw", "one-euro", "kalman"];
 
-/// Runs the protocol on `records` with `methods` (on every input) and the MediaPipe matrix.
+/// Runs the protocol on `records` with `methods` (on every input) and the MediaPipe matrix,
+/// the trajectories' Kalman filter with `kalman` (the stream's default:
+/// `KalmanParams::default()`).
 pub fn rendered_protocol(
     model: &PoseModel,
     records: &[RenderedRecord],
     methods: &[Method],
+    kalman: KalmanParams,
 ) -> RenderedReport {
     let frame = mesh_frame(model);
     let statics: Vec<&RenderedRecord> = records
@@ -649,7 +652,7 @@ pub fn rendered_protocol(
         }
     }
     let matrix_agreement = matrix_agreement(&statics, &answers, methods);
-    let trajectories = trajectory_rows(model, records, frame.as_ref());
+    let trajectories = trajectory_rows(model, records, frame.as_ref(), kalman);
     RenderedReport {
         records: records.len(),
         static_renders: statics.len(),
@@ -772,6 +775,7 @@ fn trajectory_rows(
     model: &PoseModel,
     records: &[RenderedRecord],
     frame: Option<&MeshFrame>,
+    kalman: KalmanParams,
 ) -> Vec<TrajectoryRow> {
     let mut by_id: BTreeMap<&str, Vec<&RenderedRecord>> = BTreeMap::new();
     for r in records.iter().filter(|r| r.set == "trajectory") {
@@ -829,8 +833,7 @@ fn trajectory_rows(
                     }
                     _ => {
                         let f = std::cell::RefCell::new(
-                            RotationKalman::new(KalmanParams::default())
-                                .expect("default parameters"),
+                            RotationKalman::new(kalman).expect("validated parameters"),
                         );
                         track(
                             &frames,
@@ -1177,7 +1180,12 @@ mod tests {
     fn the_subset_scores_every_input() {
         let records = subset();
         let (_, model) = default_model().unwrap();
-        let report = rendered_protocol(&model, &records, &[Method::Auto, Method::Fit]);
+        let report = rendered_protocol(
+            &model,
+            &records,
+            &[Method::Auto, Method::Fit],
+            KalmanParams::default(),
+        );
         assert_eq!(report.static_renders, 102);
         assert_eq!(report.trajectory_frames, 150);
         let get = |det: &str, method: &str, geometry: &str, off: bool| {
