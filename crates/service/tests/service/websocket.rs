@@ -339,6 +339,8 @@ async fn an_idle_stream_is_closed_and_pinged() {
 /// are full the server closes the stream (1008), instead of holding more answers.
 #[tokio::test]
 async fn a_client_that_reads_too_slowly_is_closed() {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let server = Server::start(&["--ws-queue", "2"]);
     let ws = connect(&server, None).await.unwrap();
     let (mut tx, mut rx) = ws.split();
@@ -347,16 +349,27 @@ async fn a_client_that_reads_too_slowly_is_closed() {
         .collect();
     let frame = json!({"frame_id": 0, "faces": faces}).to_string();
     let sent = 400;
+    let accepted = Arc::new(AtomicUsize::new(0));
+    let count = Arc::clone(&accepted);
     let sender = tokio::spawn(async move {
         for _ in 0..sent {
             if tx.send(Message::text(frame.clone())).await.is_err() {
                 break;
             }
+            count.fetch_add(1, Ordering::Relaxed);
         }
     });
-    // The server waits 5 s for room for its close: start reading within it.
+    // Read nothing until the server stops taking frames (no frame accepted for a second: it
+    // is closing, or blocked writing into full buffers), however slowly a loaded machine lets
+    // it fill them; the server then waits 5 s for room for its close.
     let t = std::time::Instant::now();
-    let _ = tokio::time::timeout(Duration::from_secs(3), sender).await;
+    let (mut last, mut still) = (usize::MAX, 0);
+    while still < 4 && !sender.is_finished() && t.elapsed() < Duration::from_secs(60) {
+        tokio::time::sleep(Duration::from_millis(250)).await;
+        let now = accepted.load(Ordering::Relaxed);
+        still = if now == last { still + 1 } else { 0 };
+        last = now;
+    }
     // Now read: the answers that fitted in the buffers, then the close.
     let mut answers = 0;
     let mut close = None;
@@ -371,7 +384,8 @@ async fn a_client_that_reads_too_slowly_is_closed() {
         }
     }
     eprintln!(
-        "{answers} answers of {sent}, closed after {:?}",
+        "{answers} answers of {sent} ({} frames accepted), closed after {:?}",
+        accepted.load(Ordering::Relaxed),
         t.elapsed()
     );
     assert!(answers < sent, "{answers} answers");
