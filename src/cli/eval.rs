@@ -679,9 +679,8 @@ fn run_rendered(
             .unwrap_or(KalmanParams::default().acceleration_deg_s2),
         ..KalmanParams::default()
     };
-    kalman.validate()?;
     let t = Instant::now();
-    let report = rendered_protocol(&model, &records, methods, kalman);
+    let report = rendered_protocol(&model, &records, methods, kalman)?;
     let secs = t.elapsed().as_secs_f64();
     let text = format!(
         "## Rendered benchmark: detector landmarks (issue 37)\n\n\

@@ -504,13 +504,14 @@ pub const FILTERS: [&str; 3] = ["raw", "one-euro", "kalman"];
 
 /// Runs the protocol on `records` with `methods` (on every input) and the MediaPipe matrix,
 /// the trajectories' Kalman filter with `kalman` (the stream's default:
-/// `KalmanParams::default()`).
+/// `KalmanParams::default()`). Fails when `kalman` is not valid.
 pub fn rendered_protocol(
     model: &PoseModel,
     records: &[RenderedRecord],
     methods: &[Method],
     kalman: KalmanParams,
-) -> RenderedReport {
+) -> facepose_core::error::Result<RenderedReport> {
+    kalman.validate()?;
     let frame = mesh_frame(model);
     let statics: Vec<&RenderedRecord> = records
         .iter()
@@ -653,7 +654,7 @@ pub fn rendered_protocol(
     }
     let matrix_agreement = matrix_agreement(&statics, &answers, methods);
     let trajectories = trajectory_rows(model, records, frame.as_ref(), kalman);
-    RenderedReport {
+    Ok(RenderedReport {
         records: records.len(),
         static_renders: statics.len(),
         trajectory_frames: records.iter().filter(|r| r.set == "trajectory").count(),
@@ -662,7 +663,7 @@ pub fn rendered_protocol(
         disagreement,
         matrix_agreement,
         trajectories,
-    }
+    })
 }
 
 /// The [`MatrixAgreementRow`]s: per method answering MediaPipe's points, per split.
@@ -1185,7 +1186,8 @@ mod tests {
             &records,
             &[Method::Auto, Method::Fit],
             KalmanParams::default(),
-        );
+        )
+        .unwrap();
         assert_eq!(report.static_renders, 102);
         assert_eq!(report.trajectory_frames, 150);
         let get = |det: &str, method: &str, geometry: &str, off: bool| {
