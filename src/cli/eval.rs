@@ -697,9 +697,10 @@ fn run_rendered(
          score geometry `mediapipe` (relative truth). Errors in degrees; gain = least-squares slope of \
          the estimated on the true angle; coverage90 = share of answers whose 90% interval holds the \
          truth. This protocol fits nothing across identities; the model's `detector` regression \
-         (method `detector`, on MediaPipe's 478 points) was fitted on the `train` identities only \
-         (`facepose train --detector-renders`), so its `train` rows are in-sample and only its \
-         `test` rows measure it. OpenCV SQPnP on the same points is not in \
+         (method `detector`, on MediaPipe's 478 points, which `auto` answers them with: every \
+         render's points misfit MediaPipe's mesh by more than `auto`'s cut) was fitted on the \
+         `train` identities only (`facepose train --detector-renders`), so its `train` rows are \
+         in-sample and only its `test` rows measure it. OpenCV SQPnP on the same points is not in \
          this report yet (a follow-up: it needs a script writing a fixture). \
          The trajectories' Kalman filter runs at {acc}°/s² of acceleration noise. \
          crates/eval/src/rendered.rs has the details. Evaluation {secs:.1} s.\n\n{body}",

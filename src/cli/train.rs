@@ -83,8 +83,8 @@ pub struct TrainArgs {
     #[arg(long, value_name = "FILE")]
     calibrate: Option<PathBuf>,
     /// The rendered benchmark's directory (tests/fixtures/rendered): the bundle then stores the
-    /// detector regression of MediaPipe's 478 points (method `detector`, asked by name on a
-    /// complete `mediapipe478` face), trained on its `train` identities only, with its
+    /// detector regression of MediaPipe's 478 points (method `detector`, which `auto` answers a
+    /// detector's complete `mediapipe478` face with), trained on its `train` identities only, with its
     /// uncertainty calibrated on the answers of its leave-one-identity-out folds. Needs --mesh
     /// and --calibrate.
     #[arg(long, value_name = "DIR", requires_all = ["mesh", "calibrate"])]

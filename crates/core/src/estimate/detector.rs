@@ -84,52 +84,68 @@ fn about_camera_axis(angle: f64) -> Rotation3<f64> {
 /// The input vector of a face: its shape turned by `-angle` in the image plane (y up),
 /// normalized, and a constant. Every point must be present (a detector gives them all).
 pub fn input(landmarks: &Shape2, angle: f64) -> Result<Vec<f64>> {
-    let mut v = vec![0.0; 2 * landmarks.len() + 1];
-    each_input(landmarks, angle, |i, x| v[i] = x)?;
+    let t = Normalization::of(landmarks, angle)?;
+    let mut v = Vec::with_capacity(2 * landmarks.len() + 1);
+    for p in landmarks.points() {
+        let (x, y) = t.apply(p);
+        v.extend([x, y]);
+    }
+    v.push(1.0);
     Ok(v)
 }
 
-/// Calls `f(i, xᵢ)` for each input of [`input`] in turn, without collecting them: the points
-/// turned by `-angle` (y up), centred, over the norm of the whole centred vector (as
-/// `crate::shape::normalized_vector`), then the constant 1.
-fn each_input(landmarks: &Shape2, angle: f64, mut f: impl FnMut(usize, f64)) -> Result<()> {
-    let missing = landmarks.len() - landmarks.n_present();
-    if missing > 0 {
-        return Err(Error::param(
-            "landmarks",
-            format!(
-                "method detector needs every point of the scheme (a detector gives them all); \
-                 {missing} of {} are missing: use fit",
-                landmarks.len()
-            ),
-        ));
+/// How [`input`] maps a point: turned by `-angle` (y up), centred, over the norm of the whole
+/// centred vector (as `crate::shape::normalized_vector`).
+struct Normalization {
+    centre: (f64, f64),
+    cos: f64,
+    sin: f64,
+}
+
+impl Normalization {
+    fn of(landmarks: &Shape2, angle: f64) -> Result<Self> {
+        let missing = landmarks.len() - landmarks.n_present();
+        if missing > 0 {
+            return Err(Error::param(
+                "landmarks",
+                format!(
+                    "method detector needs every point of the scheme (a detector gives them all); \
+                     {missing} of {} are missing: use fit",
+                    landmarks.len()
+                ),
+            ));
+        }
+        let pts = landmarks.points();
+        if pts.len() < 2 {
+            return Err(Error::too_few("normalized shape", 2, pts.len()));
+        }
+        let n = pts.len() as f64;
+        let (sx, sy) = pts.iter().fold((0.0, 0.0), |(a, b), p| (a + p.x, b - p.y));
+        let (cx, cy) = (sx / n, sy / n);
+        let norm = pts
+            .iter()
+            .map(|p| (p.x - cx).powi(2) + (-p.y - cy).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        // A turn keeps the norm and the centroid's distance; the check is normalized_vector's.
+        if norm.is_nan() || norm <= 1e-12 * (1.0 + cx.hypot(cy)) {
+            return Err(Error::Degenerate(
+                "all present points are at the same place".into(),
+            ));
+        }
+        Ok(Normalization {
+            centre: (cx, cy),
+            cos: (-angle).cos() / norm,
+            sin: (-angle).sin() / norm,
+        })
     }
-    let pts = landmarks.points();
-    if pts.len() < 2 {
-        return Err(Error::too_few("normalized shape", 2, pts.len()));
+
+    /// The two inputs of a point (image pixels, y down).
+    #[inline]
+    fn apply(&self, p: &nalgebra::Vector2<f64>) -> (f64, f64) {
+        let (x, y) = (p.x - self.centre.0, -p.y - self.centre.1);
+        (self.cos * x - self.sin * y, self.sin * x + self.cos * y)
     }
-    let n = pts.len() as f64;
-    let (sx, sy) = pts.iter().fold((0.0, 0.0), |(a, b), p| (a + p.x, b - p.y));
-    let (cx, cy) = (sx / n, sy / n);
-    let norm = pts
-        .iter()
-        .map(|p| (p.x - cx).powi(2) + (-p.y - cy).powi(2))
-        .sum::<f64>()
-        .sqrt();
-    // A turn keeps the norm and the centroid's distance; the check is normalized_vector's.
-    if norm.is_nan() || norm <= 1e-12 * (1.0 + cx.hypot(cy)) {
-        return Err(Error::Degenerate(
-            "all present points are at the same place".into(),
-        ));
-    }
-    let (c, s) = ((-angle).cos() / norm, (-angle).sin() / norm);
-    for (i, p) in pts.iter().enumerate() {
-        let (x, y) = (p.x - cx, -p.y - cy);
-        f(2 * i, c * x - s * y);
-        f(2 * i + 1, s * x + c * y);
-    }
-    f(2 * pts.len(), 1.0);
-    Ok(())
 }
 
 /// The rotation whose first two rows are nearest `out` (Gram-Schmidt).
@@ -166,13 +182,21 @@ impl DetectorRegression {
             });
         }
         let angle = in_plane_angle(reference);
+        let t = Normalization::of(landmarks, angle)?;
+        // input · weights, a point (two rows) at a time, then the constant's row: the same
+        // sums in the same order as over `input`'s vector.
         let mut out = [0.0; OUTPUTS];
-        each_input(landmarks, angle, |i, x| {
-            let w = &self.weights[i];
+        let (rows, constant) = self.weights.split_at(self.weights.len() - 1);
+        for (p, w) in landmarks.points().iter().zip(rows.chunks_exact(2)) {
+            let (x, y) = t.apply(p);
             for k in 0..OUTPUTS {
-                out[k] += x * w[k];
+                out[k] += x * w[0][k];
+                out[k] += y * w[1][k];
             }
-        })?;
+        }
+        for k in 0..OUTPUTS {
+            out[k] += constant[0][k];
+        }
         Ok(about_camera_axis(angle) * rotation_of(&out)?)
     }
 

@@ -136,7 +136,8 @@ pub const METHODS: [MethodSpec; 6] = [
         method: Method::Auto,
         name: "auto",
         summary: "the most accurate method for the input: fit-shape for 12 or more points of \
-                  ibug68 or inner51, fit otherwise (a MediaPipe mesh is fitted whole)",
+                  ibug68 or inner51; on a MediaPipe mesh, detector for a detector's points \
+                  (all of them, no camera) and fit for the mesh's own projection; fit otherwise",
         needs: Needs::Nothing,
         perspective: true,
         misfit: Misfit::OfOwnPose,
@@ -252,21 +253,32 @@ impl Method {
         }
     }
 
-    /// The method `auto` stands for on a MediaPipe mesh scheme: the rigid fit of the mesh. On
-    /// the mesh at known poses it is exact where the shape fit through the correspondence is
-    /// 2-3° off (`facepose eval --protocol mediapipe`, docs/RESULTS.md), and it is what
-    /// MediaPipe's own pose does (a fit of this mesh). Not `detector`: more accurate on
-    /// MediaPipe Face Mesh's own points over rendered heads (`facepose eval --protocol
-    /// rendered`), it answers points that are not that detector's (the mesh's own projection,
-    /// in the same protocol) 29° off on average; until its bias is known for every MediaPipe
-    /// landmarker, a user asks for it by name.
-    pub fn resolve_on_mesh(self) -> Method {
-        match self {
-            Method::Auto => Method::Fit,
-            m => m,
+    /// The method `auto` stands for on a MediaPipe mesh scheme, given the misfit of the mesh's
+    /// rigid fit to the points when the detector regression could read them (`None`: no
+    /// camera-free, complete input with a regression for the scheme). A detector's points are
+    /// not a rigid mesh: MediaPipe Face Mesh's own output misfits the mesh by 0.057-0.24 on
+    /// every render of the rendered benchmark and 0.060-0.116 on the real photographs
+    /// (tests/fixtures/detectors), where the regression trained on that output is the more
+    /// accurate (`facepose eval --protocol rendered`). Points that fit the mesh to within
+    /// [`DETECTOR_MISFIT`] are the mesh's own projection (0.049 at most with noise of 2% of the
+    /// eyes' distance), where the rigid fit is exact and the regression far off (17° on average
+    /// over `eval --protocol mediapipe`'s poses): those get the rigid fit. The figures:
+    /// `cargo run --release -p facepose-eval --example detector_gate`.
+    pub fn resolve_on_mesh(self, detector_misfit: Option<f64>) -> Method {
+        match (self, detector_misfit) {
+            (Method::Auto, Some(m)) if m >= DETECTOR_MISFIT => Method::Detector,
+            (Method::Auto, _) => Method::Fit,
+            (m, _) => m,
         }
     }
 }
+
+/// The misfit ([`super::Estimate::misfit`]) of a MediaPipe mesh's rigid fit from which `auto`
+/// reads the points as a detector's output (see [`Method::resolve_on_mesh`]): between the
+/// mesh's own projection with noise (at most 0.049) and MediaPipe Face Mesh's output (at least
+/// 0.057), nearer the first: taking a detector's points for the mesh's costs the fit's 1-3°,
+/// the other mistake about 17°.
+pub const DETECTOR_MISFIT: f64 = 0.05;
 
 impl MethodSpec {
     /// Fails when a camera is given to a method that cannot use it, naming those that can.
@@ -453,6 +465,21 @@ pub fn detector_of<'m>(model: &'m PoseModel, scheme: &str) -> Result<&'m Detecto
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn auto_on_a_mesh_reads_a_detector_only_from_the_cut() {
+        let on = |m| Method::Auto.resolve_on_mesh(m);
+        assert_eq!(on(None), Method::Fit);
+        assert_eq!(on(Some(0.0)), Method::Fit);
+        assert_eq!(on(Some(DETECTOR_MISFIT - 1e-9)), Method::Fit);
+        assert_eq!(on(Some(DETECTOR_MISFIT)), Method::Detector);
+        assert_eq!(on(Some(0.2)), Method::Detector);
+        assert_eq!(on(Some(f64::NAN)), Method::Fit);
+        for m in Method::ALL.into_iter().filter(|&m| m != Method::Auto) {
+            assert_eq!(m.resolve_on_mesh(Some(0.2)), m);
+            assert_eq!(m.resolve_on_mesh(None), m);
+        }
+    }
 
     #[test]
     fn the_table_is_in_the_enum_order() {

@@ -5,7 +5,9 @@ mod conventions;
 mod method;
 
 pub use conventions::{ConventionOptions, conventions_of};
-pub use method::{METHODS, Method, MethodSpec, Misfit, Needs, Ran, Runner, SubsetInput};
+pub use method::{
+    DETECTOR_MISFIT, METHODS, Method, MethodSpec, Misfit, Needs, Ran, Runner, SubsetInput,
+};
 
 use std::fmt;
 use std::str::FromStr;
@@ -352,20 +354,35 @@ fn estimate_mesh(
 ) -> Result<Estimate> {
     check_count(model, &ms.scheme, landmarks)?;
     let pose_lm = ms.pose_landmarks(landmarks);
-    let method = opts.method.resolve_on_mesh();
+    let a = &ms.scheme.anchors;
+    // The rigid fit of the mesh: the answer of `fit`, the reference `detector` de-rolls by,
+    // the misfit of the methods measured on it, and what `auto` reads the points by.
+    let rigid = || fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style));
+    let mut fitted = None;
+    // The rigid fit's misfit, once known.
+    let mut rigid_misfit = None;
+    let method = match opts.method {
+        Method::Auto => {
+            let f = rigid()?;
+            let misfit = residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1;
+            let detector_can = opts.camera.is_none()
+                && landmarks.n_present() == landmarks.len()
+                && model.detector(&ms.scheme.name).is_some();
+            fitted = Some(f);
+            rigid_misfit = Some(misfit);
+            Method::Auto.resolve_on_mesh(detector_can.then_some(misfit))
+        }
+        m => m,
+    };
     let spec = method.spec();
     spec.check_camera(opts.camera.as_ref())?;
     // Every method's spread is taken on the model's own points (the mesh landmarks' means),
     // where the calibration was learned: the mesh's 468 points are not 468 independent
     // measurements.
     let proxy = mesh.to_model(&pose_lm, &model.scheme)?;
-    // The rigid fit of the mesh: the answer of `fit`, the reference `detector` de-rolls by,
-    // and the misfit of the methods measured on it.
-    let rigid = || fit_rigid(&ms.points, &pose_lm, &[], None, fit_options(opts.style));
-    let mut fitted = None;
     let (rotation, translation) = match method {
         Method::Fit => {
-            let f = rigid()?;
+            let f = fitted.take().map_or_else(rigid, Ok)?;
             let answer = match &opts.camera {
                 Some(k) => {
                     let p = refine_perspective(
@@ -384,7 +401,7 @@ fn estimate_mesh(
         }
         // The regression reads the detector's own points, all of them.
         Method::Detector => {
-            let f = rigid()?;
+            let f = fitted.take().map_or_else(rigid, Ok)?;
             let r =
                 method::detector_of(model, &ms.scheme.name)?.estimate(landmarks, &f.rotation)?;
             fitted = Some(f);
@@ -400,18 +417,16 @@ fn estimate_mesh(
             (e.rotation, e.translation)
         }
     };
-    let a = &ms.scheme.anchors;
     let (residual, own_misfit) =
         residual(&ms.points, &pose_lm, &rotation, &a.eye_left, &a.eye_right);
     let mut misfit = own_misfit;
     if spec.misfit == Misfit::OfRigidFit {
-        let f = match fitted {
-            Some(f) => Ok(f),
-            None => rigid(),
+        misfit = match rigid_misfit {
+            Some(m) => m,
+            None => fitted.map_or_else(rigid, Ok).map_or(f64::NAN, |f| {
+                self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
+            }),
         };
-        misfit = f.map_or(f64::NAN, |f| {
-            self::residual(&ms.points, &pose_lm, &f.rotation, &a.eye_left, &a.eye_right).1
-        });
     }
     // The detector regression's answer departs from the mesh's best fit by design, and how far
     // it departs is what its calibration reads: points it was not trained on (a projection of
