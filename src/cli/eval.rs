@@ -115,6 +115,10 @@ pub struct EvalArgs {
     /// (default: the stream's, 150).
     #[arg(long, value_name = "DEG_PER_S2")]
     kalman_acceleration: Option<f64>,
+    /// Rendered protocol: how much more the trajectories' Kalman filter trusts the `detector`
+    /// regression's answers than their calibrated covariance (default: the method's, 8).
+    #[arg(long, value_name = "FACTOR")]
+    detector_filter_trust: Option<f64>,
     #[command(flatten)]
     data: DataArg,
     #[command(flatten)]
@@ -680,7 +684,7 @@ fn run_rendered(
         ..KalmanParams::default()
     };
     let t = Instant::now();
-    let report = rendered_protocol(&model, &records, methods, kalman)?;
+    let report = rendered_protocol(&model, &records, methods, kalman, a.detector_filter_trust)?;
     let secs = t.elapsed().as_secs_f64();
     let text = format!(
         "## Rendered benchmark: detector landmarks (issue 37)\n\n\
@@ -702,9 +706,13 @@ fn run_rendered(
          `train` identities only (`facepose train --detector-renders`), so its `train` rows are \
          in-sample and only its `test` rows measure it. OpenCV SQPnP on the same points is not in \
          this report yet (a follow-up: it needs a script writing a fixture). \
-         The trajectories' Kalman filter runs at {acc}°/s² of acceleration noise. \
+         The trajectories' Kalman filter runs at {acc}°/s² of acceleration noise and trusts the \
+         `detector` regression's answers {trust} times more than their calibrated covariance. \
          crates/eval/src/rendered.rs has the details. Evaluation {secs:.1} s.\n\n{body}",
         acc = kalman.acceleration_deg_s2,
+        trust = a
+            .detector_filter_trust
+            .unwrap_or(facepose_core::pose::DETECTOR_FILTER_TRUST),
         dir = dir.display(),
         n = report.records,
         st = report.static_renders,

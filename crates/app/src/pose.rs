@@ -41,8 +41,9 @@ pub struct FacePose {
     pub record: PoseRecord,
     /// The estimated rotation.
     pub rotation: facepose_core::geometry::Rotation,
-    /// The covariance of the rotation's small turn (radians²), when the answer has an
-    /// uncertainty: what the stream's Kalman filter weighs the frame by.
+    /// The covariance of the rotation's small turn (radians²) the stream's Kalman filter weighs
+    /// the frame by ([`facepose_core::pose::Estimate::filter_cov`]), when the answer has an
+    /// uncertainty.
     pub turn_cov: Option<facepose_core::geometry::TurnCovariance>,
     /// The scheme the estimate was made in.
     pub scheme: String,
@@ -110,7 +111,7 @@ pub fn estimate_face(model: &ServedModel, face: &FaceSpec<'_>) -> Result<FacePos
         )?)
     };
     let rotation = estimate.rotation;
-    let turn_cov = estimate.uncertainty.map(|u| u.turn_cov);
+    let turn_cov = estimate.filter_cov();
     let mut record = PoseRecord::from(estimate);
     if let Some(c) = &conventions {
         record

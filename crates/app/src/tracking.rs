@@ -6,7 +6,8 @@
 //! frame when it has none. A track unseen for [`TRACK_TTL_FRAMES`] frames is forgotten.
 //! Smoothing is configured by a frame (the first, or a later one, which restarts the filters)
 //! and is off by default. The filter is the core's [`RotationKalman`], which weighs each frame
-//! by its uncertainty, or its [`RotationOneEuro`]; the angles are re-derived from the smoothed
+//! by its uncertainty ([`FacePose::turn_cov`]: the estimate's `filter_cov`), or its
+//! [`RotationOneEuro`]; the angles are re-derived from the smoothed
 //! rotation, and `visible`, `residual` and the uncertainty stay those of the raw estimate.
 
 use std::collections::HashMap;

@@ -30,8 +30,8 @@
 //!   mean difference of the angles (MediaPipe − dlib68) and each one's mean signed error.
 //! - **Trajectories** (set `trajectory`, 150 frames at 30 fps each): per trajectory and input,
 //!   `auto` on every frame, then `raw`, `one-euro` and `kalman` (the core's filters at their
-//!   default parameters; the Kalman filter weighs each frame by its calibrated turn covariance,
-//!   as the stream does). Frames are handled as the stream's tracks are
+//!   default parameters; the Kalman filter weighs each frame by its calibrated turn covariance
+//!   divided by the method's filter trust, as the stream does). Frames are handled as the stream's tracks are
 //!   (`facepose_app::tracking`): a frame without an answer emits nothing; the next answer steps
 //!   the filter by the time since the track's last update (the timestamps), and a track unseen
 //!   for more than [`TRACK_TTL_FRAMES`] frames restarts. Errors are geodesic over the emitted
@@ -175,8 +175,24 @@ pub struct Answer {
     pub rotation: Rotation3<f64>,
     /// Half the 90% interval of pitch, yaw, roll, degrees (with a calibrated uncertainty).
     pub half_width: Option<[f64; 3]>,
-    /// The covariance of the rotation's small turn, radians² (what the Kalman filter weighs).
+    /// The calibrated covariance of the rotation's small turn, radians².
     pub turn_cov: Option<Matrix3<f64>>,
+    /// The method that answered (`None`: a peer's answer).
+    pub method: Option<Method>,
+}
+
+impl Answer {
+    /// The covariance the Kalman filter weighs the answer by: the turn covariance divided by
+    /// the method's filter trust ([`facepose_core::pose::MethodSpec::filter_trust`]), or by
+    /// `detector_trust` for the detector regression's answers when given.
+    pub fn filter_cov(&self, detector_trust: Option<f64>) -> Option<Matrix3<f64>> {
+        let trust = match (self.method, detector_trust) {
+            (Some(Method::Detector), Some(t)) => t,
+            (Some(m), _) => m.spec().filter_trust,
+            (None, _) => 1.0,
+        };
+        self.turn_cov.map(|c| c / trust)
+    }
 }
 
 /// `method` on `det`'s landmarks of `rec`.
@@ -200,6 +216,7 @@ pub fn answer(
             .as_ref()
             .map(|u| [0, 1, 2].map(|k| u.half_width(k))),
         turn_cov: e.uncertainty.map(|u| u.turn_cov),
+        method: Some(e.method),
     })
 }
 
@@ -212,6 +229,7 @@ pub fn mediapipe_matrix(rec: &RenderedRecord, frame: &MeshFrame) -> Option<Answe
         rotation: r,
         half_width: None,
         turn_cov: None,
+        method: None,
     })
 }
 
@@ -504,14 +522,23 @@ pub const FILTERS: [&str; 3] = ["raw", "one-euro", "kalman"];
 
 /// Runs the protocol on `records` with `methods` (on every input) and the MediaPipe matrix,
 /// the trajectories' Kalman filter with `kalman` (the stream's default:
-/// `KalmanParams::default()`). Fails when `kalman` is not valid.
+/// `KalmanParams::default()`) weighing the detector regression's answers with `detector_trust`
+/// (`None`: the method's [`facepose_core::pose::MethodSpec::filter_trust`]). Fails when `kalman`
+/// is not valid or the trust is not positive and finite.
 pub fn rendered_protocol(
     model: &PoseModel,
     records: &[RenderedRecord],
     methods: &[Method],
     kalman: KalmanParams,
+    detector_trust: Option<f64>,
 ) -> facepose_core::error::Result<RenderedReport> {
     kalman.validate()?;
+    if let Some(t) = detector_trust.filter(|t| !(t.is_finite() && *t > 0.0)) {
+        return Err(facepose_core::error::Error::param(
+            "detector_trust",
+            format!("must be positive and finite, got {t}"),
+        ));
+    }
     let frame = mesh_frame(model);
     let statics: Vec<&RenderedRecord> = records
         .iter()
@@ -653,7 +680,7 @@ pub fn rendered_protocol(
         }
     }
     let matrix_agreement = matrix_agreement(&statics, &answers, methods);
-    let trajectories = trajectory_rows(model, records, frame.as_ref(), kalman);
+    let trajectories = trajectory_rows(model, records, frame.as_ref(), kalman, detector_trust);
     Ok(RenderedReport {
         records: records.len(),
         static_renders: statics.len(),
@@ -777,6 +804,7 @@ fn trajectory_rows(
     records: &[RenderedRecord],
     frame: Option<&MeshFrame>,
     kalman: KalmanParams,
+    detector_trust: Option<f64>,
 ) -> Vec<TrajectoryRow> {
     let mut by_id: BTreeMap<&str, Vec<&RenderedRecord>> = BTreeMap::new();
     for r in records.iter().filter(|r| r.set == "trajectory") {
@@ -841,7 +869,7 @@ fn trajectory_rows(
                             measured,
                             |a, dt| {
                                 f.borrow_mut()
-                                    .filter(&a.rotation, a.turn_cov.as_ref(), dt)
+                                    .filter(&a.rotation, a.filter_cov(detector_trust).as_ref(), dt)
                                     .rotation
                             },
                             || f.borrow_mut().reset(),
@@ -1186,6 +1214,7 @@ mod tests {
             &records,
             &[Method::Auto, Method::Fit],
             KalmanParams::default(),
+            None,
         )
         .unwrap();
         assert_eq!(report.static_renders, 102);

@@ -232,7 +232,7 @@ fn frames(model: &PoseModel, opts: &TrackingOptions, rng: &mut StdRng) -> Result
         }
         let measured = estimate(model, &model.scheme.name, &lm, Method::Auto)
             .ok()
-            .map(|e| (e.rotation, e.uncertainty.map(|u| u.turn_cov)));
+            .map(|e| (e.rotation, e.filter_cov()));
         out.push(Frame {
             truth,
             kind,

@@ -6,7 +6,8 @@ mod method;
 
 pub use conventions::{ConventionOptions, conventions_of};
 pub use method::{
-    DETECTOR_MISFIT, METHODS, Method, MethodSpec, Misfit, Needs, Ran, Runner, SubsetInput,
+    DETECTOR_FILTER_TRUST, DETECTOR_MISFIT, METHODS, Method, MethodSpec, Misfit, Needs, Ran,
+    Runner, SubsetInput,
 };
 
 use std::fmt;
@@ -61,6 +62,20 @@ pub struct Estimate {
     /// With camera intrinsics: the model origin in the camera frame, mm (x right, y up, z
     /// towards the viewer; the face is at negative z).
     pub translation: Option<Vector3<f64>>,
+}
+
+impl Estimate {
+    /// The covariance of the rotation's small turn (radians²) a filter on rotations should
+    /// weigh this answer by: the calibrated one ([`Uncertainty::turn_cov`]) divided by the
+    /// method's [`MethodSpec::filter_trust`]. `None` without an uncertainty.
+    pub fn filter_cov(&self) -> Option<nalgebra::Matrix3<f64>> {
+        self.filter_cov_trusting(self.method.spec().filter_trust)
+    }
+
+    /// [`Estimate::filter_cov`] with the trust `trust` instead of the method's (for sweeps).
+    pub fn filter_cov_trusting(&self, trust: f64) -> Option<nalgebra::Matrix3<f64>> {
+        self.uncertainty.map(|u| u.turn_cov / trust)
+    }
 }
 
 /// Misfit ([`Estimate::misfit`]) above which an answer carries a [`Warning::PoorFit`]. On the
