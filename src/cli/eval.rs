@@ -116,7 +116,7 @@ pub struct EvalArgs {
     #[arg(long, value_name = "DEG_PER_S2")]
     kalman_acceleration: Option<f64>,
     /// Rendered protocol: how much more the trajectories' Kalman filter trusts the `detector`
-    /// regression's answers than their calibrated covariance (default: the method's, 8).
+    /// regression's answers than their calibrated covariance (default: the method's, 4).
     #[arg(long, value_name = "FACTOR")]
     detector_filter_trust: Option<f64>,
     #[command(flatten)]
@@ -700,14 +700,15 @@ fn run_rendered(
          rotation of that identity's answers onto its truths (per input and method), the only way to \
          score geometry `mediapipe` (relative truth). Errors in degrees; gain = least-squares slope of \
          the estimated on the true angle; coverage90 = share of answers whose 90% interval holds the \
-         truth. This protocol fits nothing across identities; the model's `detector` regression \
-         (method `detector`, on MediaPipe's 478 points, which `auto` answers them with: every \
-         render's points misfit MediaPipe's mesh by more than `auto`'s cut) was fitted on the \
-         `train` identities only (`facepose train --detector-renders`), so its `train` rows are \
-         in-sample and only its `test` rows measure it. OpenCV SQPnP on the same points is not in \
+         truth. This protocol fits nothing across identities; the model's `detector` regressions \
+         (method `detector`, on MediaPipe's 478 points and on dlib's 68, which `auto` answers \
+         them with: every render's MediaPipe points misfit MediaPipe's mesh by more than `auto`'s \
+         cut, and dlib's come complete with landmark style contour) were fitted on the `train` \
+         identities only (`facepose train --detector-renders`), so their `train` rows are \
+         in-sample and only their `test` rows measure them. OpenCV SQPnP on the same points is not in \
          this report yet (a follow-up: it needs a script writing a fixture). \
          The trajectories' Kalman filter runs at {acc}°/s² of acceleration noise and trusts the \
-         `detector` regression's answers {trust} times more than their calibrated covariance. \
+         `detector` regressions' answers {trust} times more than their calibrated covariance. \
          crates/eval/src/rendered.rs has the details. Evaluation {secs:.1} s.\n\n{body}",
         acc = kalman.acceleration_deg_s2,
         trust = a

@@ -11,7 +11,7 @@ use facepose_core::model::{
 };
 use facepose_core::sfm::{SfmOptions, reconstruct};
 use facepose_core::shape::{Scheme, Shape2};
-use facepose_eval::detector_training::train_mediapipe;
+use facepose_eval::detector_training::train_detectors;
 use facepose_eval::uncertainty::calibrate_on_faces;
 use facepose_files::data::{
     load_aflw, load_canonical_mesh, load_morphable_model, load_multi_view, load_population,
@@ -83,10 +83,11 @@ pub struct TrainArgs {
     #[arg(long, value_name = "FILE")]
     calibrate: Option<PathBuf>,
     /// The rendered benchmark's directory (tests/fixtures/rendered): the bundle then stores the
-    /// detector regression of MediaPipe's 478 points (method `detector`, which `auto` answers a
-    /// detector's complete `mediapipe478` face with), trained on its `train` identities only, with its
-    /// uncertainty calibrated on the answers of its leave-one-identity-out folds. Needs --mesh
-    /// and --calibrate.
+    /// detector regressions of MediaPipe's 478 points and of dlib's 68 (method `detector`, which
+    /// `auto` answers a detector's complete `mediapipe478` face and a complete `ibug68` face
+    /// sent with `landmark_style: contour` with), trained on its `train` identities only, with
+    /// their uncertainty calibrated on the answers of their leave-one-identity-out folds. Needs
+    /// --mesh and --calibrate.
     #[arg(long, value_name = "DIR", requires_all = ["mesh", "calibrate"])]
     detector_renders: Option<PathBuf>,
     /// Model name (default: the --out directory's name).
@@ -276,22 +277,22 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
     }
     if let Some(dir) = &a.detector_renders {
         progress.stage(format_args!(
-            "training the MediaPipe detector regression on {}",
+            "training the detector regressions (MediaPipe's 478 points, dlib's 68) on {}",
             dir.display()
         ));
         for f in rendered_files(dir)? {
             sources.push(source_file(&dir.join(f))?);
         }
         let records = load_rendered(dir, None)?;
-        let (regression, group) =
-            train_mediapipe(&mut model, &records, &dir.display().to_string())?;
+        let (regressions, group) =
+            train_detectors(&mut model, &records, &dir.display().to_string())?;
         if let Some(c) = model.calibration.as_mut() {
             c.data
                 .push_str("; method detector: its folds' answers on the rendered train identities");
             c.groups.push(group);
         }
-        model.detectors = vec![regression];
-        progress.stage("trained the detector regression");
+        model.detectors = regressions;
+        progress.stage("trained the detector regressions");
     }
     let created = match a.created {
         Some(c) => c,
@@ -329,8 +330,8 @@ pub fn run(a: TrainArgs) -> Result<(), CliError> {
         } else {
             ""
         } + if a.detector_renders.is_some() {
-            "; detector regression: MediaPipe's points on the rendered benchmark's train \
-             identities (renders of photos shipped in scikit-image and the insightface wheel)"
+            "; detector regressions: MediaPipe's and dlib's points on the rendered benchmark's \
+             train identities (renders of photos shipped in scikit-image and the insightface wheel)"
         } else {
             ""
         },

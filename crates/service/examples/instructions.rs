@@ -29,7 +29,7 @@ use facepose_core::estimate::morph_fit::{MorphOptions, fit_morphable};
 use facepose_core::estimate::{FitOptions, fit_rigid};
 use facepose_core::geometry::{EulerAngles, WeakPerspective};
 use facepose_core::model::default_model;
-use facepose_core::pose::{Method, estimate};
+use facepose_core::pose::{EstimateOptions, LandmarkStyle, Method, estimate, estimate_with};
 use facepose_core::shape::Shape2;
 use facepose_core::shape::pixels::{ImageSize, pixel_shape};
 use facepose_files::data::{data_dir, load_aflw};
@@ -50,7 +50,7 @@ use std::task::{Context, Poll};
 use tonic::codec::Streaming;
 
 /// What can be counted.
-const ENTRIES: [&str; 21] = [
+const ENTRIES: [&str; 23] = [
     "none",
     "fit",
     "fit-shape",
@@ -70,6 +70,8 @@ const ENTRIES: [&str; 21] = [
     "estimate-fit-dev-reannotated",
     "estimate-mediapipe-auto",
     "estimate-mediapipe-fit",
+    "estimate-dlib-auto",
+    "estimate-dlib-fit-shape",
     "grpc-batch64-xy",
     "grpc-batch64-landmarks",
 ];
@@ -92,6 +94,20 @@ fn mediapipe_face() -> Shape2 {
         height: face["image_size"][1].as_f64().unwrap(),
     };
     pixel_shape(&pts, Some(size)).expect("the fixture's face converts")
+}
+
+/// dlib's 68 points on the astronaut photograph (tests/fixtures/detectors/), in pixels.
+fn dlib_face() -> Shape2 {
+    let doc: serde_json::Value =
+        serde_json::from_str(include_str!("../../../tests/fixtures/detectors/dlib.json"))
+            .expect("the dlib fixture is JSON");
+    let pts: Vec<Vector2<f64>> = doc["faces"][0]["ibug68"]
+        .as_array()
+        .expect("ibug68")
+        .iter()
+        .map(|p| Vector2::new(p[0].as_f64().unwrap(), p[1].as_f64().unwrap()))
+        .collect();
+    Shape2::full(pts).expect("the fixture's face converts")
 }
 
 /// The AFLW2000-3D dev faces of `set` (`fitted` or `reannotated`), every |angle| <= 99°.
@@ -265,6 +281,12 @@ fn main() {
         None => Vec::new(),
     };
     let mp = mediapipe_face();
+    let dlib = dlib_face();
+    let contour = |method| EstimateOptions {
+        method,
+        camera: None,
+        style: LandmarkStyle::Contour,
+    };
     let mut scratch = FaceScratch::default();
     for call in 0..calls {
         match what.as_str() {
@@ -331,6 +353,21 @@ fn main() {
             )),
             "estimate-mediapipe-fit" => drop(black_box(
                 estimate(&model, "mediapipe478", black_box(&mp), Method::Fit).unwrap(),
+            )),
+            // dlib's 68 points sent as docs/API.md advises (`landmark_style: contour`), as
+            // `auto` answers them (the detector regression) and as it did before it (the shape
+            // fit).
+            "estimate-dlib-auto" => drop(black_box(
+                estimate_with(&model, "ibug68", black_box(&dlib), &contour(Method::Auto)).unwrap(),
+            )),
+            "estimate-dlib-fit-shape" => drop(black_box(
+                estimate_with(
+                    &model,
+                    "ibug68",
+                    black_box(&dlib),
+                    &contour(Method::FitShape),
+                )
+                .unwrap(),
             )),
             dev_entry if dev_entry.contains("-dev-") => {
                 let method = if dev_entry.starts_with("estimate-auto") {

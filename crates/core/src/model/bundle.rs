@@ -550,15 +550,20 @@ impl Bundle {
         }
         for (i, d) in self.detector_regressions.iter().enumerate() {
             d.validate().map_err(core("detector_regressions"))?;
-            let n = mesh
-                .as_ref()
-                .and_then(|m| m.scheme(&d.scheme))
-                .map(|s| s.scheme.len());
+            // The model's own scheme (dlib's 68 points on an ibug68 model) or a mesh scheme.
+            let n = if d.scheme == self.scheme.name {
+                Some(self.scheme.len())
+            } else {
+                mesh.as_ref()
+                    .and_then(|m| m.scheme(&d.scheme))
+                    .map(|s| s.scheme.len())
+            };
             if n.map(|n| 2 * n + 1) != Some(d.weights.len()) {
                 return Err(invalid(
                     "detector_regressions",
                     format!(
-                        "entry {i} ({}) is not for a mesh scheme of this model, or has the wrong number of weights",
+                        "entry {i} ({}) is not for the model's own scheme or a mesh scheme of \
+                         it, or has the wrong number of weights",
                         d.scheme
                     ),
                 ));

@@ -137,16 +137,18 @@ pub struct MethodSpec {
 }
 
 /// [`MethodSpec::filter_trust`] of the detector regression.
-pub const DETECTOR_FILTER_TRUST: f64 = 8.0;
+pub const DETECTOR_FILTER_TRUST: f64 = 4.0;
 
 /// Every method, in the order of the docs and of listings ([`Method::ALL`] follows it).
 pub const METHODS: [MethodSpec; 6] = [
     MethodSpec {
         method: Method::Auto,
         name: "auto",
-        summary: "the most accurate method for the input: fit-shape for 12 or more points of \
-                  ibug68 or inner51; on a MediaPipe mesh, detector for a detector's points \
-                  (all of them, no camera) and fit for the mesh's own projection; fit otherwise",
+        summary: "the most accurate method for the input: detector for dlib's 68 points (all of \
+                  them in ibug68, landmark_style contour, no camera), fit-shape for 12 or more \
+                  other points of ibug68 or inner51; on a MediaPipe mesh, detector for a \
+                  detector's points (all of them, no camera) and fit for the mesh's own \
+                  projection; fit otherwise",
         needs: Needs::Nothing,
         perspective: true,
         misfit: Misfit::OfOwnPose,
@@ -198,7 +200,7 @@ pub const METHODS: [MethodSpec; 6] = [
         method: Method::Detector,
         name: "detector",
         summary: "the ridge regression trained on a detector's own points over rendered heads at \
-                  known poses (mediapipe478 in the default model; every point needed)",
+                  known poses (mediapipe478 and ibug68 in the default model; every point needed)",
         needs: Needs::DetectorRegression,
         perspective: false,
         misfit: Misfit::OfRigidFit,
@@ -252,12 +254,22 @@ impl Method {
         self as usize
     }
 
-    /// The method `auto` stands for, given the model, the subset the input is in and how many
-    /// points are present. Measured on AFLW2000-3D (docs/RESULTS.md): the shape fit is the most
-    /// accurate on 68 and 51 points, the rigid fit on five (anchor means, which the shape fit
-    /// does not take).
-    pub fn resolve(self, model: &PoseModel, subset: &Subset, present: usize) -> Method {
+    /// The method `auto` stands for, given the model, the subset the input is in, how many
+    /// points are present and whether the input is a detector's that the model has a regression
+    /// for (`detector_input`: complete, sent in 2D style (`landmark_style: contour`, as dlib's
+    /// 68 points are) and without a camera). Measured on AFLW2000-3D (docs/RESULTS.md): the
+    /// shape fit is the most accurate on 68 and 51 points, the rigid fit on five (anchor means,
+    /// which the shape fit does not take); on the rendered benchmark's dlib points, the
+    /// regression trained on dlib's output (`facepose eval --protocol rendered`).
+    pub fn resolve(
+        self,
+        model: &PoseModel,
+        subset: &Subset,
+        present: usize,
+        detector_input: bool,
+    ) -> Method {
         match self {
+            Method::Auto if detector_input => Method::Detector,
             Method::Auto
                 if Method::FitShape.is_supported_by(model)
                     && subset.map != SubsetMap::Anchors

@@ -245,7 +245,13 @@ fn estimate_in_subset(
     let subset = model.subset(scheme)?;
     check_count(model, &subset.scheme, landmarks)?;
     let present = landmarks.n_present();
-    let method = method.resolve(model, subset, present);
+    // A detector's complete 2D-style points with no camera, which a regression was trained on
+    // (dlib's 68 in the default model).
+    let detector_input = opts.style == LandmarkStyle::Contour
+        && opts.camera.is_none()
+        && present == subset.scheme.len()
+        && model.detector(scheme).is_some();
+    let method = method.resolve(model, subset, present, detector_input);
     let map = &subset.map;
     let contour = &subset.scheme.contour;
     let spec = method.spec();
