@@ -301,6 +301,52 @@ fn auto_takes_the_dlib_regression_only_for_complete_2d_style_points_without_a_ca
     assert_eq!(e.method, Method::FitShape);
 }
 
+/// The answers in another convention come from the method that answered: `auto` on MediaPipe's
+/// points answers with the detector regression, and MediaPipe's matrix of that answer is the
+/// one `detector` by name gives, not the mesh fit's (a refit under MediaPipe's camera once made
+/// `auto` pick the fit there).
+#[test]
+fn conventions_follow_the_method_that_answered() {
+    use facepose_core::geometry::convention::ConventionRequest;
+    use facepose_core::pose::{ConventionOptions, conventions_of};
+    use facepose_core::shape::pixels::ImageSize;
+    let f = &mediapipe()[0];
+    let shape = Shape2::full(
+        f.pixels(478)
+            .iter()
+            .map(|p| Vector2::new(p[0], p[1]))
+            .collect(),
+    )
+    .unwrap();
+    let requests = [ConventionRequest::MediaPipe];
+    let conv = ConventionOptions {
+        requests: &requests,
+        orientation: None,
+        image_size: Some(ImageSize {
+            width: f.image_size[0],
+            height: f.image_size[1],
+        }),
+    };
+    let answers = |method| {
+        let opts = EstimateOptions {
+            method,
+            camera: None,
+            style: LandmarkStyle::Projected,
+        };
+        let e = estimate_with(model(), "mediapipe478", &shape, &opts).unwrap();
+        (
+            e.method,
+            conventions_of(model(), "mediapipe478", &shape, &opts, &e, &conv).unwrap(),
+        )
+    };
+    let (auto_method, auto) = answers(Method::Auto);
+    let (_, detector) = answers(Method::Detector);
+    let (_, fit) = answers(Method::Fit);
+    assert_eq!(auto_method, Method::Detector);
+    assert_eq!(auto, detector);
+    assert_ne!(auto, fit);
+}
+
 /// facepose on MediaPipe's points against facepose on dlib's 68 points of the same photograph
 /// (`scripts/detector-report.sh` prints every figure). The bounds are the measured largest
 /// differences with a margin of about a third, per group: the astronaut and its copies that

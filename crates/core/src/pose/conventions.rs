@@ -58,8 +58,12 @@ pub fn conventions_of(
         (Some(m), true) => Some(MeshFrame::of_served_mesh(&m.source().vertices)?),
         _ => None,
     };
+    // The refit runs the method that answered (`auto` resolved): a camera would otherwise make
+    // `auto` pick a fit where it answered with the detector regression. A method without a
+    // perspective refinement refuses the camera, and its own rotation is carried over.
     let refit = |k: &crate::estimate::Intrinsics| {
         let o = EstimateOptions {
+            method: estimate.method,
             camera: Some(*k),
             ..*opts
         };
