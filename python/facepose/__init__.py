@@ -124,7 +124,8 @@ class Pose:
             service's ``conventions`` object (docs/API.md, "Answers in your convention"), or
             None.
         turn_cov: (3, 3) covariance of the rotation's small turn, radians², or None: what
-            the Kalman tracker weighs the frame by.
+            the Kalman tracker weighs the frame by (the calibrated one, divided by the
+            method's filter trust: 4 for ``detector``, 1 otherwise; as the stream does).
         smoothed, gated: set by :class:`Tracker`: the angles and rotation are the filter's;
             the Kalman filter left this frame out as an outlier (the pose is its prediction).
     """

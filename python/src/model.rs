@@ -99,7 +99,10 @@ fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound
             let iv = |k: usize| (u.interval90[k][0], u.interval90[k][1]);
             let sd = (u.sd[1], u.sd[0], u.sd[2]);
             d.set_item("uncertainty", (sd, (iv(1), iv(0), iv(2))))?;
-            let cov = Array2::from_shape_fn((3, 3), |(i, j)| u.turn_cov[(i, j)]);
+            // What the stream's Kalman filter weighs the frame by (the method's filter trust
+            // applied), so that the Python tracker smooths as the stream does.
+            let c = e.filter_cov().unwrap_or(u.turn_cov);
+            let cov = Array2::from_shape_fn((3, 3), |(i, j)| c[(i, j)]);
             d.set_item("turn_cov", cov.into_pyarray(py))?;
         }
         None => {
@@ -175,7 +178,7 @@ fn batch_dict<'py, 'm>(
                     }
                 }
                 residual[i] = e.residual;
-                if let Some(u) = &e.uncertainty {
+                if let (Some(u), Some(cov)) = (&e.uncertainty, e.filter_cov()) {
                     for (k, c) in [1, 0, 2].into_iter().enumerate() {
                         sd[(i, k)] = u.sd[c];
                         interval[(i, k, 0)] = u.interval90[c][0];
@@ -183,7 +186,7 @@ fn batch_dict<'py, 'm>(
                     }
                     for j in 0..3 {
                         for k in 0..3 {
-                            turn_cov[(i, j, k)] = u.turn_cov[(j, k)];
+                            turn_cov[(i, j, k)] = cov[(j, k)];
                         }
                     }
                 }

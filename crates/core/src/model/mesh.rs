@@ -5,7 +5,8 @@
 //! model's frame and scale by a similarity fit of its ibug68 correspondence to the model's mean
 //! (inner points only: the correspondence's jaw is its weakest part). It serves two schemes:
 //! `mediapipe468` (the mesh) and `mediapipe478` (the mesh and the iris points, which move with
-//! the gaze and so take no part in the pose; each reports the visibility of its eye).
+//! the gaze and so take no part in the fits' pose, though the detector regression trained on
+//! them reads them; each reports the visibility of its eye).
 //!
 //! How the methods use it (`pose.rs`): the rigid fit fits the mesh's own points; the shape fit,
 //! the regression and the geometric method run on the model's own scheme, with each model point

@@ -142,7 +142,9 @@ pub enum LandmarkStyle {
     #[default]
     Projected,
     /// 2D-style (300-W, dlib, FAN-2D): contour points (the jaw) hidden at the pose sit on the
-    /// visible outline, so the fit methods leave them out (HPR at the estimate).
+    /// visible outline, so the fit methods leave them out (HPR at the estimate). A complete
+    /// face in a scheme the model has a detector regression for (dlib's 68 in `ibug68`) is
+    /// read as that detector's output: `auto` answers it with the regression.
     Contour,
 }
 
@@ -162,7 +164,7 @@ impl LandmarkStyle {
             }
             LandmarkStyle::Contour => {
                 "2D-style: hidden jaw points sit on the visible outline (300-W, dlib), so the \
-                 fit leaves them out"
+                 fit leaves them out; all 68 ibug68 points are read as dlib's (auto: detector)"
             }
         }
     }
