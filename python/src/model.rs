@@ -78,6 +78,9 @@ fn threads_of(threads: Option<usize>) -> usize {
 /// One pose as a dict of `Pose`'s fields.
 fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound<'py, PyDict>> {
     let e: Estimate = p.estimate;
+    // What the stream's Kalman filter weighs the frame by (the method's filter trust applied),
+    // so that the Python tracker smooths as the stream does.
+    let filter_cov = e.filter_cov();
     let d = PyDict::new(py);
     d.set_item("yaw", e.angles.yaw)?;
     d.set_item("pitch", e.angles.pitch)?;
@@ -99,9 +102,7 @@ fn pose_dict<'py>(py: Python<'py>, m: &Inner, p: FacePose<'_>) -> PyResult<Bound
             let iv = |k: usize| (u.interval90[k][0], u.interval90[k][1]);
             let sd = (u.sd[1], u.sd[0], u.sd[2]);
             d.set_item("uncertainty", (sd, (iv(1), iv(0), iv(2))))?;
-            // What the stream's Kalman filter weighs the frame by (the method's filter trust
-            // applied), so that the Python tracker smooths as the stream does.
-            let c = e.filter_cov().unwrap_or(u.turn_cov);
+            let c = filter_cov.unwrap_or(u.turn_cov);
             let cov = Array2::from_shape_fn((3, 3), |(i, j)| c[(i, j)]);
             d.set_item("turn_cov", cov.into_pyarray(py))?;
         }

@@ -313,3 +313,46 @@ fn writing_is_atomic_and_refuses_to_overwrite() {
     ));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A bundle's detector regressions read the model's own scheme (dlib's 68 in `ibug68`) or a
+/// mesh scheme, with `2n + 1` weight rows: the default model's two load; one row short, or a
+/// scheme the model does not serve, is refused by name; without the mesh only the own-scheme
+/// one still has its points.
+#[test]
+fn detector_regressions_read_the_own_scheme_or_a_mesh_scheme() {
+    let base = Bundle::parse(DEFAULT_BUNDLE).unwrap();
+    let schemes: Vec<&str> = base
+        .detector_regressions
+        .iter()
+        .map(|d| d.scheme.as_str())
+        .collect();
+    assert_eq!(schemes, ["mediapipe478", "ibug68"]);
+    let model = base.load().unwrap();
+    assert!(model.detector("ibug68").is_some() && model.detector("mediapipe478").is_some());
+    // An edited bundle with its checksum made right again: only the regressions are wrong.
+    let sealed = |mut b: Bundle| {
+        b.checksum = b.compute_checksum().unwrap();
+        b
+    };
+    let refused = |b: &Bundle| {
+        let Err(e) = sealed(b.clone()).load() else {
+            panic!("a bundle with a wrong detector regression loaded");
+        };
+        let e = e.to_string();
+        assert!(e.contains("detector_regressions"), "{e}");
+    };
+    let mut short = base.clone();
+    short.detector_regressions[1].weights.pop();
+    refused(&short);
+    let mut unknown = base.clone();
+    unknown.detector_regressions[1].scheme = "inner51".into();
+    refused(&unknown);
+    let mut no_mesh = base.clone();
+    no_mesh.mesh = None;
+    refused(&no_mesh);
+    no_mesh
+        .detector_regressions
+        .retain(|d| d.scheme == "ibug68");
+    let model = sealed(no_mesh).load().unwrap();
+    assert!(model.detector("ibug68").is_some());
+}
