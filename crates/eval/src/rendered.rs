@@ -1205,6 +1205,53 @@ mod tests {
         assert!(geodesic_deg(&procrustes_offset(&pairs), &q) < 1e-9);
     }
 
+    /// A detector trust that is not a positive finite number is refused before any work; a
+    /// higher trust follows the detector's answers more closely on the trajectories (less
+    /// smoothing: the Kalman output's jitter rises toward the raw answers').
+    #[test]
+    fn the_detector_trust_is_checked_and_moves_the_kalman_filter() {
+        let records = subset();
+        let (_, model) = default_model().unwrap();
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(
+                rendered_protocol(
+                    &model,
+                    &records,
+                    &[Method::Auto],
+                    KalmanParams::default(),
+                    Some(bad)
+                )
+                .is_err(),
+                "{bad}"
+            );
+        }
+        let jitter = |trust| {
+            let report = rendered_protocol(
+                &model,
+                &records,
+                &[Method::Auto],
+                KalmanParams::default(),
+                Some(trust),
+            )
+            .unwrap();
+            let row = |filter: &str| {
+                report
+                    .trajectories
+                    .iter()
+                    .find(|r| r.detector == "mediapipe478" && r.filter == filter)
+                    .map(|r| r.jitter)
+                    .unwrap()
+            };
+            (row("kalman"), row("raw"))
+        };
+        let (low, raw) = jitter(1.0);
+        let (high, _) = jitter(64.0);
+        assert!(
+            low < high && high <= raw * 1.05,
+            "trust 1: {low}, 64: {high}, raw {raw}"
+        );
+    }
+
     #[test]
     fn the_subset_scores_every_input() {
         let records = subset();
