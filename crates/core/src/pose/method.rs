@@ -106,6 +106,10 @@ pub struct Ran<'a> {
     pub rotation: Rotation3<f64>,
     /// The fitted shape and its camera, for the fit methods.
     pub fitted: Option<(Cow<'a, [Vector3<f64>]>, RigidFit)>,
+    /// The rotation of the mean shape's rigid fit, when the method ran that fit without
+    /// answering with it (the detector regression's reference): what the misfit of
+    /// [`Misfit::OfRigidFit`] is measured on, rather than fitting again.
+    pub rigid: Option<Rotation3<f64>>,
 }
 
 /// A method's runner.
@@ -384,6 +388,7 @@ fn run_fit<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
     Ok(Ran {
         rotation: f.rotation,
         fitted: Some((Cow::Borrowed(&subset.mean[..]), f)),
+        rigid: None,
     })
 }
 
@@ -433,6 +438,7 @@ fn run_fit_shape<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
                 ..f.camera
             },
         )),
+        rigid: None,
     })
 }
 
@@ -448,6 +454,7 @@ fn run_regression<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
     Ok(Ran {
         rotation: i.subset.regression.estimate(i.landmarks, &hidden)?.rotation,
         fitted: None,
+        rigid: None,
     })
 }
 
@@ -459,6 +466,7 @@ fn run_geometry<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
     Ok(Ran {
         rotation: estimate_geometric(&five, &i.model.geometry)?,
         fitted: None,
+        rigid: None,
     })
 }
 
@@ -469,6 +477,7 @@ fn run_detector<'a>(i: &SubsetInput<'a>) -> Result<Ran<'a>> {
     Ok(Ran {
         rotation: regression.estimate(i.landmarks, &reference)?,
         fitted: None,
+        rigid: Some(reference),
     })
 }
 

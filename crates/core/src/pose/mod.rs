@@ -267,7 +267,11 @@ fn estimate_in_subset(
         fit_options,
     };
     // The fit methods keep their shape and camera for the perspective refinement.
-    let Ran { rotation, fitted } = spec.run(&input)?;
+    let Ran {
+        rotation,
+        fitted,
+        rigid,
+    } = spec.run(&input)?;
     // The raw spread at the answer's rotation, of the shape the method stands on.
     let spread = match &fitted {
         Some((shape, f)) => raw_spread(shape, landmarks, Some(&f.weights), &rotation),
@@ -295,11 +299,17 @@ fn estimate_in_subset(
     if spec.misfit == Misfit::OfRigidFit {
         // Where the rigid fit cannot answer (too few points for it), there is no misfit to
         // check: NaN passes the check.
+        // The detector regression ran that fit already, as its reference.
         let visibility = (subset.map == SubsetMap::Own).then_some(&model.visibility);
-        misfit = fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)
-            .map_or(f64::NAN, |f| {
-                self::residual(&subset.mean, landmarks, &f.rotation, eyes.0, eyes.1).1
-            });
+        let rigid = match rigid {
+            Some(r) => Some(r),
+            None => fit_rigid(&subset.mean, landmarks, contour, visibility, fit_options)
+                .ok()
+                .map(|f| f.rotation),
+        };
+        misfit = rigid.map_or(f64::NAN, |r| {
+            self::residual(&subset.mean, landmarks, &r, eyes.0, eyes.1).1
+        });
     }
     let angles = EulerAngles::from_rotation(&rotation);
     let spread = spread.map(|s| RawSpread { misfit, ..s });
