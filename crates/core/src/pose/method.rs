@@ -544,10 +544,6 @@ mod tests {
             estimate(Method::Detector).filter_cov(),
             Some(turn_cov / DETECTOR_FILTER_TRUST)
         );
-        assert_eq!(
-            estimate(Method::Detector).filter_cov_trusting(2.0),
-            Some(turn_cov / 2.0)
-        );
         let none = Estimate {
             uncertainty: None,
             ..estimate(Method::Detector)

@@ -69,11 +69,7 @@ impl Estimate {
     /// weigh this answer by: the calibrated one ([`Uncertainty::turn_cov`]) divided by the
     /// method's [`MethodSpec::filter_trust`]. `None` without an uncertainty.
     pub fn filter_cov(&self) -> Option<nalgebra::Matrix3<f64>> {
-        self.filter_cov_trusting(self.method.spec().filter_trust)
-    }
-
-    /// [`Estimate::filter_cov`] with the trust `trust` instead of the method's (for sweeps).
-    pub fn filter_cov_trusting(&self, trust: f64) -> Option<nalgebra::Matrix3<f64>> {
+        let trust = self.method.spec().filter_trust;
         self.uncertainty.map(|u| u.turn_cov / trust)
     }
 }
