@@ -9,10 +9,12 @@
 
 mod conventions;
 mod number;
+mod write;
 
 pub use conventions::{
     ConventionsRecord, EulerRecord, MediaPipeRecord, OpenCvRecord, QuaternionRecord,
 };
+pub use write::{push_f64, push_str};
 
 use serde::de;
 use serde::{Deserialize, Deserializer, Serialize};
@@ -129,6 +131,16 @@ pub fn parse_landmarks_at(
 #[inline]
 pub fn read_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
     number::read(b, start)
+}
+
+/// [`read_number`] for the usual landmark coordinate alone (`121.0`, `-37.25`: an optional
+/// sign, up to seven integer and fifteen fraction digits, no exponent, with 16 bytes of `b`
+/// from its first digit), read in place: its value, always finite, and the offset past it, at
+/// most 24 bytes on. `None` when the number at `start` is not of that kind (or the exact
+/// shortcuts cannot tell its value): [`read_number`] reads it, and any other number.
+#[inline(always)]
+pub fn read_short_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
+    number::short(b, start)
 }
 
 /// The offset of the first byte at or after `i` that is not JSON whitespace.

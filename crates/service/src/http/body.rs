@@ -298,11 +298,6 @@ pub fn json_bytes(body: Vec<u8>) -> Response {
         .into_response()
 }
 
-/// `v` as JSON, in a buffer of room for one pose.
-pub fn to_json<T: Serialize>(v: &T) -> Result<Vec<u8>, HttpError> {
-    to_json_sized(v, ONE_POSE_JSON)
-}
-
 /// Room for one pose's JSON: with 68 points and the uncertainty it is about 1,000-1,100 bytes,
 /// so one allocation rather than a regrowth and a copy.
 pub const ONE_POSE_JSON: usize = 1536;

@@ -18,7 +18,7 @@ use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::shape::pixels::check_coordinates;
 
 use super::body::{
-    ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_pose_body, require_json, to_json,
+    ONE_ERROR_JSON, ONE_POSE_JSON, json_bytes, parse_json, read_pose_body, require_json,
     to_json_sized,
 };
 use super::conventions::{Conventions, Orientation};
@@ -230,13 +230,16 @@ pub async fn pose(State(app): State<Arc<App>>, req: Request) -> Result<Response,
     let req = pose_request(reader, &bytes)?;
     drop(bytes);
     let answer = app.estimate(Transport::Http, req.model.as_deref(), &req)?;
-    Ok(json_bytes(to_json(&PoseResponse {
-        pose: answer.pose.record,
-        scheme: answer.pose.scheme,
-        model: answer.model.name.clone(),
-        model_version: answer.model.version.clone(),
-        id: req.id,
-    })?))
+    Ok(json_bytes(
+        PoseResponse {
+            pose: answer.pose.record,
+            scheme: answer.pose.scheme,
+            model: answer.model.name.clone(),
+            model_version: answer.model.version.clone(),
+            id: req.id,
+        }
+        .to_json(),
+    ))
 }
 
 /// Estimate many faces; each gets its pose or its own error.

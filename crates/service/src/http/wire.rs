@@ -8,7 +8,7 @@ use facepose_core::model::bundle::Provenance;
 use facepose_core::pose::{LandmarkStyle, Method};
 use facepose_core::shape::MAX_POINTS;
 use facepose_core::shape::pixels::{ImageSize, MAX_COORDINATE, MAX_IMAGE_SIDE};
-use facepose_records::{Landmarks, PoseRecord};
+use facepose_records::{Landmarks, PoseRecord, push_str};
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 use utoipa::ToSchema;
@@ -238,6 +238,32 @@ pub struct PoseResponse {
     #[serde(skip_serializing_if = "Option::is_none")]
     /// The request's `id`, echoed.
     pub id: Option<FaceId>,
+}
+
+impl PoseResponse {
+    /// The answer as JSON: serde_json's bytes for it (a test holds them equal), written by
+    /// hand ([`PoseRecord::write_json_members`]) in a buffer with room for one pose.
+    pub fn to_json(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(super::body::ONE_POSE_JSON);
+        out.push(b'{');
+        self.pose.write_json_members(&mut out);
+        out.extend_from_slice(b",\"scheme\":");
+        push_str(&mut out, &self.scheme);
+        out.extend_from_slice(b",\"model\":");
+        push_str(&mut out, &self.model);
+        out.extend_from_slice(b",\"model_version\":");
+        push_str(&mut out, &self.model_version);
+        if let Some(id) = &self.id {
+            out.extend_from_slice(b",\"id\":");
+            match id {
+                FaceId::Text(t) => push_str(&mut out, t),
+                // serde_json writes a raw value's text as it is.
+                FaceId::Number(n) => out.extend_from_slice(n.get().as_bytes()),
+            }
+        }
+        out.push(b'}');
+        out
+    }
 }
 
 /// One face of a batch; `scheme`, `method` and `camera` default to the batch's.
@@ -644,6 +670,57 @@ impl From<VersionsView> for VersionsResponse {
             name: v.name,
             active: v.active,
             versions: v.versions.into_iter().map(Into::into).collect(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use facepose_core::pose::Method;
+
+    fn record() -> PoseRecord {
+        PoseRecord {
+            yaw: -21.370000000000005,
+            pitch: 4.5,
+            roll: 0.0,
+            rotation: [[0.93, 0.0, -0.36], [0.01, 1.0, 0.0], [0.36, 0.0, 0.93]],
+            visible: vec![true, false, true, true],
+            residual: 0.0421,
+            method: Method::FitShape,
+            translation: None,
+            warnings: vec![],
+            uncertainty: None,
+            conventions: None,
+        }
+    }
+
+    /// The hand-written answer is serde_json's, byte for byte, with each kind of id and
+    /// names that need escaping.
+    #[test]
+    fn the_pose_answer_is_serde_jsons_bytes() {
+        let ids = [
+            None,
+            Some(FaceId::Text("frame \"7\"\n".into())),
+            Some(FaceId::Number(
+                RawValue::from_string("18446744073709551616".into()).unwrap(),
+            )),
+            Some(FaceId::Number(
+                RawValue::from_string("-1.5e3".into()).unwrap(),
+            )),
+        ];
+        for id in ids {
+            let answer = PoseResponse {
+                pose: record(),
+                scheme: "ibug68".into(),
+                model: "default\\x".into(),
+                model_version: "v1".into(),
+                id,
+            };
+            assert_eq!(
+                String::from_utf8(answer.to_json()).unwrap(),
+                serde_json::to_string(&answer).unwrap()
+            );
         }
     }
 }
