@@ -77,7 +77,7 @@ fn first_digits(v: u64, n: usize) -> u64 {
 /// exact), else [`nearest`] itself. `None`: not such a number, or the shortcuts cannot tell;
 /// [`general`] reads it.
 #[inline(always)]
-fn short(b: &[u8], start: usize) -> Option<(f64, usize)> {
+pub(crate) fn short(b: &[u8], start: usize) -> Option<(f64, usize)> {
     let negative = *b.get(start)? == b'-';
     let s = start + usize::from(negative);
     let window: &[u8; 16] = b.get(s..s + 16)?.try_into().ok()?;
@@ -412,6 +412,8 @@ mod tests {
                 let want = bits(general(b, start));
                 if let Some(got) = short(b, start) {
                     prop_assert_eq!(Some(got).map(|(v, e)| (v.to_bits(), e)), want, "{:?} at {}", body, start);
+                    // What `read_short_number` promises its callers.
+                    prop_assert!(got.0.is_finite() && got.1 - start <= 24, "{:?} at {}", body, start);
                 }
                 prop_assert_eq!(bits(read(b, start)), want, "{:?} at {}", body, start);
             }

@@ -29,7 +29,7 @@ use super::error::HttpError;
 use super::wire::{BatchFace, BatchRequest, PoseRequest};
 use facepose_app::error::ServiceError;
 use facepose_core::shape::MAX_POINTS;
-use facepose_records::{Landmarks, read_number, skip_ws};
+use facepose_records::{Landmarks, read_number, read_short_number, skip_ws};
 
 /// The most bytes a string (or a number) of a pose body may have: far above any name (64
 /// characters) or id a client needs, far below what would cost memory.
@@ -1054,6 +1054,10 @@ fn whole_point(chunk: &[u8], i: usize) -> Option<(f64, f64, usize)> {
 /// bytes.
 #[inline(always)]
 fn point_number(chunk: &[u8], j: usize) -> Option<(f64, usize)> {
+    // The usual coordinate: finite and short by construction.
+    if let Some(read) = read_short_number(chunk, j) {
+        return Some(read);
+    }
     let (v, end) = read_number(chunk, j)?;
     (v.is_finite() && end - j <= MAX_TOKEN).then_some((v, end))
 }
