@@ -9,7 +9,9 @@
 # and measures: time to ready, resident memory, /healthz, then for each workload (scheme:method)
 # one pose (HTTP), a batch (HTTP) and its ceiling (the same work in one process, no network),
 # gRPC unary (h2load with a pre-encoded frame) and gRPC streams
-# (loadgen). Load generators run on the same machine and share its cores with the server.
+# (loadgen), and for the default method issue 38's ratio: RATIO_ROUNDS rounds of RATIO_SECONDS
+# of /healthz then the pose, their server CPU compared, the median reported. Load generators run
+# on the same machine and share its cores with the server.
 # Faces: the AFLW2000-3D dev split's re-annotated landmarks (FACES=dev, needs the shared data:
 # FACEPOSE_DATA, else ../shared/data), or FACES=synthetic (the default model's mean shape at
 # random poses). The method `default` sends none: the server's default, `auto`.
@@ -19,6 +21,11 @@ cd "$(dirname "$0")/.."
 
 DURATION=${DURATION:-10}
 CONNS=${CONNS:-16}
+# Issue 38's ratio, a single default-method pose's server CPU against a /healthz request's:
+# RATIO_ROUNDS rounds of RATIO_SECONDS of each in turn (the host's load drifts over a run; the
+# median of rounds taken side by side moves less than one long run of each).
+RATIO_ROUNDS=${RATIO_ROUNDS:-5}
+RATIO_SECONDS=${RATIO_SECONDS:-4}
 # ibug68 is the main scheme (68 points, 2.5 kB of JSON a face) and the default method what a
 # client gets without asking, so it goes first; then the rigid fit. five (what face detectors,
 # RetinaFace or SCRFD, give) is one more workload away: WORKLOADS="ibug68:default ibug68:fit five:fit".
@@ -93,9 +100,9 @@ server_ticks() { awk '{print $14 + $15}' "/proc/$PID/stat"; }
 
 # wrk: prints "<req/s> <p50 ms> <p99 ms> <non-2xx> <server CPU µs per request> <wrk's CPU µs
 # per request>" (wrk's user + system time, from bash's `time`).
-run_wrk() { # conns path [body]
-    local conns=$1 path=$2 body=${3:-} t0 t1 client
-    local args=(-t1 -c"$conns" -d"${DURATION}s" --latency)
+run_wrk() { # conns path [body]; WRK_SECONDS (default DURATION) long
+    local conns=$1 path=$2 body=${3:-} t0 t1 client seconds=${WRK_SECONDS:-$DURATION}
+    local args=(-t1 -c"$conns" -d"${seconds}s" --latency)
     [ -n "$body" ] && args+=(-s "$WORK/post.lua")
     t0=$(server_ticks)
     client=$( { TIMEFORMAT='%U %S'; time BODY="$body" wrk "${args[@]}" "$BASE$path" >"$WORK/wrk.txt" 2>"$WORK/wrk.err"; } 2>&1 ) ||
@@ -104,7 +111,7 @@ run_wrk() { # conns path [body]
     echo "$(python3 "$WORK/wrk.py" "$WORK/wrk.txt") $(python3 -c "
 import re
 rps = float(re.search(r'Requests/sec:\s+([\d.]+)', open('$WORK/wrk.txt').read()).group(1))
-n = rps * $DURATION
+n = rps * $seconds
 user, system = map(float, '$client'.split())
 print(f'{($t1 - $t0) / $(getconf CLK_TCK) / n * 1e6:.1f} {(user + system) / n * 1e6:.1f}')")"
 }
@@ -130,6 +137,22 @@ for w in $WORKLOADS; do
     fi
     echo "== $w: wrk POST /v1/pose"
     read -r P_RPS P_P50 P_P99 P_BAD P_CPU P_WRK < <(run_wrk "$CONNS" /v1/pose "$D/poses.jsonl")
+    RATIO_ROW=""
+    if [ "$METHOD" = default ] && [ "$RATIO_ROUNDS" -gt 0 ]; then
+        ROUND_RATIOS=""
+        for r in $(seq "$RATIO_ROUNDS"); do
+            echo "== $w: server CPU of a pose against /healthz, round $r of $RATIO_ROUNDS"
+            read -r _ _ _ _ RH_CPU _ < <(WRK_SECONDS=$RATIO_SECONDS run_wrk "$CONNS" /healthz)
+            read -r _ _ _ _ RP_CPU _ < <(WRK_SECONDS=$RATIO_SECONDS run_wrk "$CONNS" /v1/pose "$D/poses.jsonl")
+            ROUND_RATIOS+="$(python3 -c "print(f'{$RP_CPU / $RH_CPU:.2f}')") "
+        done
+        read -r R_MEDIAN R_LIST < <(python3 -c "
+import statistics
+r = [float(x) for x in '$ROUND_RATIOS'.split()]
+print(f'{statistics.median(r):.2f}', ', '.join(f'{x:.2f}' for x in r))")
+        RATIO_ROW="| a pose's server CPU against a /healthz request's | wrk, $CONNS connections: /healthz then \`POST /v1/pose\`, ${RATIO_SECONDS} s each, $RATIO_ROUNDS rounds | | **${R_MEDIAN}x**, the median (rounds: $R_LIST; the long runs above: $(python3 -c "print(f'{$P_CPU / $H_CPU:.2f}')")x) | | | | ≤ 2.5x: $(pass "$R_MEDIAN <= 2.5") |
+"
+    fi
     echo "== $w: wrk POST /v1/pose:batch ($BATCH faces)"
     read -r B_RPS B_P50 B_P99 B_BAD B_CPU _ < <(run_wrk 4 /v1/pose:batch "$D/batch.json")
     B_CPU=$(python3 -c "print(f'{$B_CPU / $BATCH:.2f}')")
@@ -187,7 +210,7 @@ print(f'{bound / $H_RPS * 100:.0f} {cpu / ($T_POSE * $H_RPS) - $H_CPU - $P_WRK:.
 |---|---|---|---|---|---|---|---|
 | \`POST /v1/pose\` | wrk, $CONNS connections | $P_RPS req/s (**${RATIO}%** of /healthz) | $P_CPU µs / request | $P_WRK µs / request | $P_P50 ms | $P_P99 ms | ≥ $(python3 -c "print(round($T_POSE * 100))")% of /healthz: $(pass "$P_RPS >= $T_POSE * $H_RPS") |
 | one pose a request at most: the run's CPU if the server did /healthz's work plus the face's (the ceiling's $C_US µs) | computed | ${BOUND}% of /healthz | | | | | the target needs the face's work ≤ $NEEDED µs on these terms |
-| \`POST /v1/pose:batch\`, $BATCH faces | wrk, 4 connections | $B_RPS req/s = **$BATCH_PPS poses/s** | $B_CPU µs / pose | | $B_P50 ms | $B_P99 ms | ≥ $((T_BATCH / 1000))k poses/s: $(pass "$BATCH_PPS >= $T_BATCH") |
+$RATIO_ROW| \`POST /v1/pose:batch\`, $BATCH faces | wrk, 4 connections | $B_RPS req/s = **$BATCH_PPS poses/s** | $B_CPU µs / pose | | $B_P50 ms | $B_P99 ms | ≥ $((T_BATCH / 1000))k poses/s: $(pass "$BATCH_PPS >= $T_BATCH") |
 | the batch's ceiling: its work alone (\`http::answer_batch\`, no network, no server) | loadgen ceiling, $(nproc) threads | $C_FPS faces/s | $C_US µs / face | | | | the batch is at $(python3 -c "print(f'{$BATCH_PPS / $C_FPS * 100:.0f}')")% of it |
 | gRPC \`Estimate\` | h2load, 4 connections × 16 streams | $G_RPS req/s ($G_OK OK, $G_N answered) | | | $G_P50 ms | $G_P99 ms | |
 $STREAM_ROWS
@@ -236,6 +259,9 @@ scripts/loadtest.sh      # DURATION=10 CONNS=16 BATCH=1000 WORKLOADS="ibug68:def
 wrk -t1 -c$CONNS -d${DURATION}s --latency http://127.0.0.1:PORT/healthz
 wrk -t1 -c$CONNS -d${DURATION}s --latency -s post.lua http://127.0.0.1:PORT/v1/pose          # BODY=poses.jsonl, one body a request in turn
 wrk -t1 -c4 -d${DURATION}s --latency -s post.lua http://127.0.0.1:PORT/v1/pose:batch         # BODY=batch.json
+# the default method only, RATIO_ROUNDS=$RATIO_ROUNDS rounds of the two in turn, server CPU compared:
+wrk -t1 -c$CONNS -d${RATIO_SECONDS}s --latency http://127.0.0.1:PORT/healthz
+wrk -t1 -c$CONNS -d${RATIO_SECONDS}s --latency -s post.lua http://127.0.0.1:PORT/v1/pose
 h2load -D $DURATION -c 4 -m 16 -t 1 -H 'content-type: application/grpc' -H 'te: trailers' \\
   -d estimate.grpc http://127.0.0.1:PORT/facepose.v1.PoseService/Estimate
 target/release/examples/loadgen stream --addr http://127.0.0.1:PORT --streams 8 --faces 4 --window 8 \\
