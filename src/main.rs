@@ -17,14 +17,11 @@ static ALLOC: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
 /// them): one arena (the thread caches carry the fast path; more arenas raised the peak resident
 /// size under the batch load from 57 to 78 MiB at the same throughput), and a background thread
 /// that returns freed pages to the system after `dirty_decay_ms`, so the resident size falls back
-/// after a burst of batches without purging on the request path. The thread caches are swept of
-/// what they hold unused every MiB a thread allocates rather than every 64 KiB: a 68-point pose
-/// request allocates about 40 KiB, and the sweeps were 2,900 of its 143,000 instructions
-/// (`scripts/server-instructions.sh`).
+/// after a burst of batches without purging on the request path.
 #[cfg(not(target_env = "msvc"))]
 #[allow(non_upper_case_globals)]
 #[unsafe(export_name = "_rjem_malloc_conf")]
-pub static malloc_conf: &[u8] = b"narenas:1,background_thread:true,max_background_threads:1,dirty_decay_ms:250,muzzy_decay_ms:0,tcache_gc_incr_bytes:1048576\0";
+pub static malloc_conf: &[u8] = b"narenas:1,background_thread:true,max_background_threads:1,dirty_decay_ms:250,muzzy_decay_ms:0\0";
 
 /// Head pose from 2D facial landmarks.
 #[derive(Parser)]
