@@ -50,8 +50,17 @@ pub enum Transport {
 }
 
 impl Transport {
-    /// Every transport, in the order of their discriminants.
+    /// Every transport, in the order of [`Transport::index`].
     pub const ALL: [Transport; 3] = [Transport::Http, Transport::Grpc, Transport::WebSocket];
+
+    /// The transport's place in [`Transport::ALL`], for tables indexed by transport.
+    pub const fn index(self) -> usize {
+        match self {
+            Transport::Http => 0,
+            Transport::Grpc => 1,
+            Transport::WebSocket => 2,
+        }
+    }
 
     /// The transport's label value.
     pub fn name(self) -> &'static str {
@@ -158,7 +167,7 @@ impl Metrics {
 
     /// The per-face outcomes of one request.
     pub fn faces(&self, tally: &FaceTally, transport: Transport) {
-        let poses = &self.0.poses[transport as usize];
+        let poses = &self.0.poses[transport.index()];
         let transport = transport.name();
         for ((m, &n), slot) in Method::ALL.iter().zip(&tally.by_method).zip(poses) {
             if n > 0 {
@@ -521,7 +530,7 @@ mod tests {
         }
         assert!(!tb.contains(r#"transport="http""#) && !ta.contains("websocket"));
         for (i, t) in Transport::ALL.into_iter().enumerate() {
-            assert_eq!(t as usize, i);
+            assert_eq!(t.index(), i);
         }
     }
 }
