@@ -134,13 +134,21 @@ pub fn read_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
 }
 
 /// [`read_number`] for the usual landmark coordinate alone (`121.0`, `-37.25`: an optional
-/// sign, up to seven integer and fifteen fraction digits, no exponent, with 16 bytes of `b`
-/// from its first digit), read in place: its value, always finite, and the offset past it, at
-/// most 24 bytes on. `None` when the number at `start` is not of that kind (or the exact
-/// shortcuts cannot tell its value): [`read_number`] reads it, and any other number.
+/// sign, up to seven integer and fifteen fraction digits and nineteen in all, no exponent,
+/// with 16 bytes of `b` from its first digit, 24 past the point for more than seven fraction
+/// digits), read in place: its value, always finite, and the offset past it, at most 24 bytes
+/// on. `None` when the number at `start` is not of that kind (or the exact shortcuts cannot
+/// tell its value): [`read_long_number`] reads it then, as [`read_number`] would.
 #[inline(always)]
 pub fn read_short_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
     number::short(b, start)
+}
+
+/// [`read_number`] without its first try of [`read_short_number`]: for a caller that has
+/// tried it already.
+#[inline]
+pub fn read_long_number(b: &[u8], start: usize) -> Option<(f64, usize)> {
+    number::general(b, start)
 }
 
 /// The offset of the first byte at or after `i` that is not JSON whitespace.

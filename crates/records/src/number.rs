@@ -147,7 +147,7 @@ fn far(w: u64, q: i64) -> Option<f64> {
 
 /// [`read`] for any number.
 #[inline(never)]
-fn general(b: &[u8], start: usize) -> Option<(f64, usize)> {
+pub(crate) fn general(b: &[u8], start: usize) -> Option<(f64, usize)> {
     let negative = b.get(start) == Some(&b'-');
     let mut i = start + usize::from(negative);
     let int_start = i;

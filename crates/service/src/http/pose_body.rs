@@ -29,7 +29,7 @@ use super::error::HttpError;
 use super::wire::{BatchFace, BatchRequest, PoseRequest};
 use facepose_app::error::ServiceError;
 use facepose_core::shape::MAX_POINTS;
-use facepose_records::{Landmarks, read_number, read_short_number, skip_ws};
+use facepose_records::{Landmarks, read_long_number, read_number, read_short_number, skip_ws};
 
 /// The most bytes a string (or a number) of a pose body may have: far above any name (64
 /// characters) or id a client needs, far below what would cost memory.
@@ -1058,7 +1058,7 @@ fn point_number(chunk: &[u8], j: usize) -> Option<(f64, usize)> {
     if let Some(read) = read_short_number(chunk, j) {
         return Some(read);
     }
-    let (v, end) = read_number(chunk, j)?;
+    let (v, end) = read_long_number(chunk, j)?;
     (v.is_finite() && end - j <= MAX_TOKEN).then_some((v, end))
 }
 
