@@ -229,6 +229,8 @@ mod tests {
         assert!(err.to_string().contains("landmark 0 y"), "{err}");
     }
 
+    use proptest::strategy::Strategy;
+
     proptest::proptest! {
         /// Accepted exactly when every coordinate is finite and within the bound, and a refusal
         /// names the first coordinate that is not.
@@ -262,14 +264,24 @@ mod tests {
         /// else they come back as sent.
         #[test]
         fn pixels_are_refused_as_normalized_exactly_by_the_rule(
-            points in proptest::collection::vec(
-                proptest::option::of(proptest::array::uniform2(proptest::prop_oneof![
-                    2 => proptest::sample::select(vec![0.0, 0.5, 1.0, -0.25, 1.25]),
-                    2 => -0.3f64..1.3,
-                    1 => -500.0f64..500.0,
-                ])),
-                0..12,
-            )
+            points in proptest::prop_oneof![
+                proptest::collection::vec(
+                    proptest::option::of(proptest::array::uniform2(proptest::prop_oneof![
+                        2 => proptest::sample::select(vec![0.0, 0.5, 1.0, -0.25, 1.25]),
+                        2 => -0.3f64..1.3,
+                        1 => -500.0f64..500.0,
+                    ])),
+                    0..12,
+                ),
+                // One point again and again, with gaps: no spread.
+                (
+                    proptest::array::uniform2(proptest::prop_oneof![-0.3f64..1.3, -500.0f64..500.0]),
+                    proptest::collection::vec(proptest::bool::ANY, 0..12),
+                )
+                    .prop_map(|(p, on)| -> Vec<Option<[f64; 2]>> {
+                        on.into_iter().map(|on| on.then_some(p)).collect()
+                    }),
+            ]
         ) {
             let present: Vec<[f64; 2]> = points.iter().flatten().copied().collect();
             let normalized = present.len() >= 3

@@ -709,9 +709,36 @@ mod tests {
                 RawValue::from_string("-1.5e3".into()).unwrap(),
             )),
         ];
-        for id in ids {
+        let mut full = record();
+        full.translation = Some([12.5, -3.0, -640.25]);
+        full.warnings = vec!["a \"quoted\"\twarning".into(), "second".into()];
+        full.uncertainty = Some(facepose_records::UncertaintyRecord {
+            yaw: facepose_records::AngleUncertainty {
+                sd: 2.5,
+                interval90: [-25.5, -17.2],
+            },
+            pitch: facepose_records::AngleUncertainty {
+                sd: f64::INFINITY,
+                interval90: [-180.0, 180.0],
+            },
+            roll: facepose_records::AngleUncertainty {
+                sd: 0.75,
+                interval90: [-1.2, 1.2],
+            },
+        });
+        full.conventions = Some(Box::new(facepose_records::ConventionsRecord {
+            quaternion: Some(facepose_records::QuaternionRecord {
+                w: 0.98,
+                x: 0.01,
+                y: -0.18,
+                z: 0.0,
+            }),
+            ..Default::default()
+        }));
+        let poses = [record(), full];
+        for (id, pose) in ids.into_iter().zip(poses.iter().cycle()) {
             let answer = PoseResponse {
-                pose: record(),
+                pose: pose.clone(),
                 scheme: "ibug68".into(),
                 model: "default\\x".into(),
                 model_version: "v1".into(),
