@@ -1,8 +1,8 @@
 //! The pose record written as JSON without serde's machinery: the same bytes as serde_json's
 //! compact writer (the tests hold the two equal over random records), with the keys written
 //! as constants and the 68 or so `visible` flags as a run of literals. Serde's derive goes
-//! through a map for the service's flattened answer and escapes every key: the answer to one
-//! 68-point face took 9,400 instructions that way (callgrind of the server under a pose load,
+//! through a map for the service's flattened answer and escapes every key: about 4,500
+//! instructions more for one 68-point face's answer than this (callgrind of the release server,
 //! docs/performance-notes.md). The floats are serde_json's own formatting
 //! ([`CompactFormatter`]), so the digits cannot differ.
 
