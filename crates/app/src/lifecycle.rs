@@ -10,6 +10,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use tokio::sync::watch;
+use tokio_util::task::{TaskTracker, task_tracker::TaskTrackerToken};
 
 use crate::metrics::Metrics;
 
@@ -19,6 +20,9 @@ pub struct Lifecycle {
     draining: AtomicBool,
     drain_tx: watch::Sender<bool>,
     metrics: Metrics,
+    /// The open streams that outlive their connection's task (WebSocket streams, which run on
+    /// their own once upgraded), each holding a token until its closing handshake is over.
+    streams: TaskTracker,
 }
 
 impl Lifecycle {
@@ -28,6 +32,7 @@ impl Lifecycle {
             draining: AtomicBool::new(false),
             drain_tx: watch::Sender::new(false),
             metrics,
+            streams: TaskTracker::new(),
         }
     }
 
@@ -49,6 +54,22 @@ impl Lifecycle {
         }
         self.metrics.ready(false);
         self.drain_tx.send_replace(true);
+    }
+
+    /// A token for a stream that runs apart from its connection's task, held until the stream
+    /// is over, closing handshake included: the drain waits for every one
+    /// ([`Lifecycle::streams_ended`]), so that a stream told to end is not cut off by the
+    /// process's exit before its close reaches the client.
+    pub fn stream_token(&self) -> TaskTrackerToken {
+        self.streams.token()
+    }
+
+    /// Resolves once every stream token has been dropped. For the drain, once no connection
+    /// can open a new stream.
+    pub fn streams_ended(&self) -> impl Future<Output = ()> + Send + 'static {
+        self.streams.close();
+        let streams = self.streams.clone();
+        async move { streams.wait().await }
     }
 
     /// Resolves once the drain has started (for streams and the drain cap).

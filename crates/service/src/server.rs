@@ -8,8 +8,8 @@
 //! The drain, in order: readiness and gRPC health flip (load balancers stop sending), the
 //! listener stops accepting, open streams are told to end (UNAVAILABLE), in-flight requests
 //! finish, new retraining uploads are refused, and [`serve`] returns once every connection is
-//! closed and every accepted retraining job has ended (Ok), or the drain's cap has passed
-//! ([`ServeError::DrainCut`]).
+//! closed, every WebSocket stream has finished its closing handshake and every accepted
+//! retraining job has ended (Ok), or the drain's cap has passed ([`ServeError::DrainCut`]).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -267,8 +267,11 @@ async fn serve_app(
     let connections_done = Arc::new(AtomicBool::new(false));
     let done = connections_done.clone();
     let jobs = app.jobs.clone();
+    let streams = app.clone();
     let finish = async move {
         server.await;
+        // WebSocket streams run apart from their connections once upgraded: their closes.
+        streams.lifecycle.streams_ended().await;
         done.store(true, Ordering::Release);
         let left = jobs.unfinished();
         if !left.is_empty() {

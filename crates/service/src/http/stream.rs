@@ -34,6 +34,7 @@ use futures_util::{SinkExt, StreamExt};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{mpsc, oneshot};
 use tokio::time::Instant;
+use tokio_util::task::task_tracker::TaskTrackerToken;
 
 use super::cors::CorsOrigins;
 use super::error::{ErrorBody, ErrorCode, ErrorObject, HttpError};
@@ -430,6 +431,8 @@ async fn handshake(State(st): State<StreamState>, req: Request) -> Response {
         Ok(s) => s,
         Err(e) => return HttpError::from(e).into_response(),
     };
+    // Held by the stream until its closing handshake is over: the drain waits for it.
+    let token = st.app.lifecycle.stream_token();
     let max = st.app.limits.max_body;
     // tungstenite reads in chunks of 128 KiB by default, held for the stream's life: 1,024
     // open streams took 140 MB (scripts/abuse.sh, case w2). Frames are read in 16 KiB chunks.
@@ -437,7 +440,7 @@ async fn handshake(State(st): State<StreamState>, req: Request) -> Response {
         .read_buffer_size(16 * 1024)
         .max_message_size(max)
         .max_frame_size(max)
-        .on_upgrade(move |socket| run(socket, st.app, session, st.limits))
+        .on_upgrade(move |socket| run(socket, st.app, session, st.limits, token))
 }
 
 /// Sends `msg`s in order until the queue ends or `now` says to close at once.
@@ -498,7 +501,17 @@ async fn writer(
 }
 
 /// A stream, from its upgrade to its close.
-async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: WsLimits) {
+///
+/// `token` ([`facepose_app::lifecycle::Lifecycle::stream_token`]) is dropped once the stream's
+/// last message, its close, has been written: the drain waits for that, not for the client's
+/// reply, which a client may be slow to send.
+async fn run(
+    socket: WebSocket,
+    app: Arc<App>,
+    session: StreamSession,
+    limits: WsLimits,
+    token: TaskTrackerToken,
+) {
     let (sink, mut stream) = socket.split();
     let (tx, rx) = mpsc::channel::<Message>(limits.queue.max(1));
     let (now_tx, now_rx) = oneshot::channel::<Close>();
@@ -607,8 +620,12 @@ async fn run(socket: WebSocket, app: Arc<App>, session: StreamSession, limits: W
             }
         }
     };
+    let written = async move {
+        let _ = writer.await;
+        drop(token);
+    };
     let _ = tokio::time::timeout(CLOSE_WAIT, async {
-        let _ = tokio::join!(writer, rest);
+        tokio::join!(written, rest);
     })
     .await;
 }
