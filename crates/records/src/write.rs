@@ -36,16 +36,22 @@ pub fn push_str(out: &mut Vec<u8>, s: &str) {
     }
 }
 
-/// Appends `[a, b, ...]` of floats.
-fn push_floats(out: &mut Vec<u8>, values: &[f64]) {
+/// Appends `[a, b, ...]`, each item written by `item`.
+#[inline]
+fn push_list<T>(out: &mut Vec<u8>, items: &[T], item: impl Fn(&mut Vec<u8>, &T)) {
     out.push(b'[');
-    for (i, &v) in values.iter().enumerate() {
+    for (i, v) in items.iter().enumerate() {
         if i > 0 {
             out.push(b',');
         }
-        push_f64(out, v);
+        item(out, v);
     }
     out.push(b']');
+}
+
+/// Appends `[a, b, ...]` of floats.
+fn push_floats(out: &mut Vec<u8>, values: &[f64]) {
+    push_list(out, values, |out, &v| push_f64(out, v));
 }
 
 fn push_angle(out: &mut Vec<u8>, a: &AngleUncertainty) {
@@ -67,14 +73,9 @@ impl PoseRecord {
         push_f64(out, self.pitch);
         out.extend_from_slice(b",\"roll\":");
         push_f64(out, self.roll);
-        out.extend_from_slice(b",\"rotation\":[");
-        for (i, row) in self.rotation.iter().enumerate() {
-            if i > 0 {
-                out.push(b',');
-            }
-            push_floats(out, row);
-        }
-        out.extend_from_slice(b"],\"visible\":[");
+        out.extend_from_slice(b",\"rotation\":");
+        push_list(out, &self.rotation, |out, row| push_floats(out, row));
+        out.extend_from_slice(b",\"visible\":[");
         for (i, &v) in self.visible.iter().enumerate() {
             let item: &[u8] = match (i > 0, v) {
                 (false, true) => b"true",
@@ -92,14 +93,8 @@ impl PoseRecord {
             out.extend_from_slice(b",\"translation\":");
             push_floats(out, t);
         }
-        out.extend_from_slice(b",\"warnings\":[");
-        for (i, w) in self.warnings.iter().enumerate() {
-            if i > 0 {
-                out.push(b',');
-            }
-            push_str(out, w);
-        }
-        out.push(b']');
+        out.extend_from_slice(b",\"warnings\":");
+        push_list(out, &self.warnings, |out, w| push_str(out, w));
         if let Some(u) = &self.uncertainty {
             out.extend_from_slice(b",\"uncertainty\":{\"yaw\":");
             push_angle(out, &u.yaw);
